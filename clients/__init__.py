@@ -1,0 +1,1 @@
+"""armd's clients: the Python client library and the hardware adapter daemons."""

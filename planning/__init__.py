@@ -1,0 +1,1 @@
+"""armd's planning layer: Ruckig trajectories, limit checks, actuator commands per sample."""

@@ -1,0 +1,225 @@
+"""Actuator maps: joint vector -> actuator angles -> servo pulses or stepper micro-steps, and back.
+
+Every actuator angle is a linear function of the joint vector, ``a = M q + b`` (one row per
+actuator). A plain servo has a single 1 in its row; a mirrored pair (the SG5-UT shoulder) is
+two rows on the same joint whose pulses run in opposite directions; a servo behind a linkage
+(the desk4 minor-arm servo) has the row ``(0, 1, 1)``. Pulses and steps are functions of
+``a``, never of ``q`` directly. A command outside an actuator's range is an error
+(:class:`~robots.errors.ActuatorRangeError`), never silently clamped.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ActuatorMapError, ActuatorRangeError, BadRequest
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class Servo:
+    """A hobby servo on a pulse-width controller (SSC-32 channel).
+
+    ``pulse = centre_pulse + direction * (angle - centre_angle) * us_per_rad`` [us].
+    """
+
+    name: str
+    channel: int
+    centre_pulse: float
+    centre_angle: float
+    direction: int
+    us_per_rad: float
+    pulse_range: tuple[float, float]
+    angle_range: tuple[float, float]
+
+    kind = "servo"
+    unit = "us"
+
+    def to_command(self, angle: FloatArray) -> FloatArray:
+        """Pulse width [us] (unrounded) for actuator angle(s) [rad]."""
+        return self.centre_pulse + self.direction * (angle - self.centre_angle) * self.us_per_rad
+
+    def to_angle(self, command: FloatArray) -> FloatArray:
+        """Actuator angle [rad] for pulse width(s) [us]."""
+        return self.centre_angle + self.direction * (command - self.centre_pulse) / self.us_per_rad
+
+    @property
+    def command_range(self) -> tuple[float, float]:
+        return self.pulse_range
+
+    @property
+    def resolution(self) -> float:
+        """One command quantum (1 us) as an angle [rad]."""
+        return 1.0 / self.us_per_rad
+
+
+@dataclass(frozen=True)
+class Stepper:
+    """A stepper motor on a step/dir driver, positioned in micro-steps from its zero.
+
+    ``steps = round(angle * gear * microsteps * full_steps_per_rev / (2 pi))``.
+    ``axis`` is the controller's axis letter (GRBL ``X``, ``Y``, ``Z``).
+    """
+
+    name: str
+    axis: str
+    full_steps_per_rev: int
+    microsteps: int
+    gear: float
+    angle_range: tuple[float, float]
+
+    kind = "stepper"
+    unit = "steps"
+
+    @property
+    def steps_per_rad(self) -> float:
+        return self.gear * self.microsteps * self.full_steps_per_rev / (2.0 * math.pi)
+
+    @property
+    def steps_per_degree(self) -> float:
+        """Micro-steps per degree of actuator angle: GRBL's ``$100..$102`` setting."""
+        return self.steps_per_rad * math.pi / 180.0
+
+    @property
+    def step_angle(self) -> float:
+        """One micro-step as an angle [rad] (seed 002 Table II, in radians)."""
+        return 1.0 / self.steps_per_rad
+
+    @property
+    def resolution(self) -> float:
+        return self.step_angle
+
+    def to_command(self, angle: FloatArray) -> FloatArray:
+        """Micro-steps (unrounded) for actuator angle(s) [rad]."""
+        return angle * self.steps_per_rad
+
+    def to_angle(self, command: FloatArray) -> FloatArray:
+        """Actuator angle [rad] for micro-step count(s)."""
+        return command / self.steps_per_rad
+
+    @property
+    def command_range(self) -> tuple[float, float]:
+        lo, hi = self.angle_range
+        return (math.ceil(lo * self.steps_per_rad - _TOL), math.floor(hi * self.steps_per_rad + _TOL))
+
+
+Actuator = Servo | Stepper
+
+
+@dataclass(frozen=True)
+class Gripper:
+    """The gripper: an actuator that is not a joint of the chain. Pulses [us]."""
+
+    channel: int
+    closed: float
+    open: float
+
+    def pulse(self, opening: float) -> int:
+        """Pulse [us] for ``opening`` in [0, 1] (0 closed, 1 open)."""
+        if not (isinstance(opening, (int, float)) and math.isfinite(opening) and 0.0 <= opening <= 1.0):
+            raise BadRequest(f"gripper opening must be a number in [0, 1], got {opening!r}", field="opening")
+        return round(self.closed + opening * (self.open - self.closed))
+
+
+class ActuatorMap:
+    """``a = M q + b`` and each actuator's command conversion, vectorised over samples.
+
+    ``M`` has shape (k, n): k actuators, n joints. It must have full column rank, so that
+    :meth:`joints_from_commands` recovers ``q`` from what the hardware reports.
+    """
+
+    def __init__(self, actuators: tuple[Actuator, ...], M: FloatArray, b: FloatArray) -> None:
+        self.actuators = actuators
+        self.M = np.asarray(M, dtype=float)
+        self.b = np.asarray(b, dtype=float)
+        self._pinv = np.linalg.pinv(self.M)
+        self._angle_lo = np.array([a.angle_range[0] for a in actuators])
+        self._angle_hi = np.array([a.angle_range[1] for a in actuators])
+        self.names = tuple(a.name for a in actuators)
+
+    def __len__(self) -> int:
+        return len(self.actuators)
+
+    def angles(self, q: FloatArray) -> FloatArray:
+        """Actuator angles [rad] of joint vector(s) ``q``: shape (n,) -> (k,), (m, n) -> (m, k)."""
+        return np.asarray(q, dtype=float) @ self.M.T + self.b
+
+    def commands(self, q: FloatArray) -> IntArray:
+        """Integer commands (pulse [us] or micro-steps) for joint vector(s) ``q``.
+
+        Raises :class:`ActuatorRangeError` naming the first actuator that would leave its
+        range; nothing is clamped.
+        """
+        a = self.angles(q)
+        self.check_angles(a)
+        raw = self._raw_commands(a)
+        cmds = np.rint(raw).astype(np.int64)
+        for j, act in enumerate(self.actuators):
+            lo, hi = act.command_range
+            col = cmds[..., j]
+            bad = (col < lo) | (col > hi)
+            if np.any(bad):
+                value = float(np.atleast_1d(col)[np.argmax(np.atleast_1d(bad))])
+                raise ActuatorRangeError(act.name, value, (float(lo), float(hi)), act.unit)
+        return cmds
+
+    def check_angles(self, a: FloatArray) -> None:
+        """Raise :class:`ActuatorRangeError` if any actuator angle [rad] leaves its range."""
+        bad = (a < self._angle_lo - _TOL) | (a > self._angle_hi + _TOL)
+        if np.any(bad):
+            flat = np.atleast_2d(bad)
+            row, col = np.argwhere(flat)[0]
+            act = self.actuators[col]
+            value = float(np.atleast_2d(a)[row, col])
+            raise ActuatorRangeError(act.name, value, act.angle_range, "rad")
+
+    def _raw_commands(self, a: FloatArray) -> FloatArray:
+        out = np.empty_like(a)
+        for j, act in enumerate(self.actuators):
+            out[..., j] = act.to_command(a[..., j])
+        return out
+
+    def angles_from_commands(self, commands: FloatArray | IntArray) -> FloatArray:
+        """Actuator angles [rad] from commands (pulses [us] or micro-steps)."""
+        c = np.asarray(commands, dtype=float)
+        if c.shape[-1] != len(self.actuators):
+            raise BadRequest(
+                f"expected {len(self.actuators)} actuator commands ({', '.join(self.names)}), got {c.shape[-1]}",
+                field="commands",
+            )
+        out = np.empty_like(c)
+        for j, act in enumerate(self.actuators):
+            out[..., j] = act.to_angle(c[..., j])
+        return out
+
+    def joints_from_commands(self, commands: FloatArray | IntArray, tol: float | None = None) -> FloatArray:
+        """Joint vector(s) [rad] that the given commands put the arm in (hardware read-back).
+
+        Redundant actuators (a mirrored pair) are reconciled by least squares; if they
+        disagree by more than ``tol`` [rad] (default: two command quanta) this raises
+        :class:`ActuatorMapError`.
+        """
+        a = self.angles_from_commands(commands)
+        q = (a - self.b) @ self._pinv.T
+        residual = np.abs(q @ self.M.T + self.b - a)
+        limit = tol if tol is not None else 2.0 * max(act.resolution for act in self.actuators)
+        if np.any(residual > limit):
+            j = int(np.argmax(np.max(np.atleast_2d(residual), axis=0)))
+            raise ActuatorMapError(
+                f"actuator readings disagree: {self.actuators[j].name} is {float(np.max(residual)):.3g} rad "
+                "from what the other actuators imply",
+                actuator=self.actuators[j].name,
+            )
+        return q
+
+    def quantise(self, q: FloatArray) -> FloatArray:
+        """The joint vector(s) the hardware actually reaches for ``q``: commands, then back."""
+        return self.joints_from_commands(self.commands(q), tol=np.inf)

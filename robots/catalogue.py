@@ -1,0 +1,525 @@
+"""Loading arms from folders: the built-in catalogue and a user's own folder of arms.
+
+An arm is a folder holding ``robot.urdf`` (the kinematic chain, position and velocity
+limits) and ``robot.toml`` (what URDF cannot say: acceleration and jerk limits, coupled
+limits, the actuator map, the closed-form solver's geometry, sensors). The format is
+documented in ``docs/robot-format.md``. Every problem raises :class:`RobotFileError`
+naming the file, the field and what is wrong.
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
+from .errors import RobotFileError, UnknownRobot
+from .geometry import Geometry
+from .limits import CoupledLimit, JointLimits
+from .robot import Robot
+from .sensors import RangeSensor
+from .units import parse_angle
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+CATALOGUE_DIR = Path(__file__).resolve().parent
+_MISSING = object()
+
+
+class _Table:
+    """A TOML table being read: typed getters that name the field, and no unknown keys."""
+
+    def __init__(self, file: str, data: Any, path: str) -> None:
+        self.file = file
+        self.path = path
+        if not isinstance(data, dict):
+            raise RobotFileError(file, path or None, f"must be a table, got {type(data).__name__}")
+        self.data: dict[str, Any] = data
+        self.used: set[str] = set()
+
+    def field(self, key: str) -> str:
+        return f"{self.path}.{key}" if self.path else key
+
+    def error(self, key: str | None, problem: str) -> RobotFileError:
+        return RobotFileError(self.file, self.field(key) if key else (self.path or None), problem)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = _MISSING) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if default is _MISSING:
+                near = difflib.get_close_matches(key, [k for k in self.data if isinstance(k, str)], n=1)
+                hint = f" (found {near[0]!r}: a misspelling?)" if near else ""
+                raise self.error(key, f"is required{hint}")
+            return default
+        return self.data[key]
+
+    def string(self, key: str, default: Any = _MISSING) -> str:
+        v = self.raw(key, default)
+        if not isinstance(v, str) or not v:
+            raise self.error(key, f"must be a non-empty string, got {v!r}")
+        return v
+
+    def number(self, key: str, default: Any = _MISSING, *, positive: bool = False, angle: bool = False) -> float:
+        v = self.raw(key, default)
+        try:
+            x = parse_angle(v) if angle else _plain_number(v)
+        except ValueError as e:
+            raise self.error(key, str(e)) from None
+        if not math.isfinite(x):
+            raise self.error(key, f"must be finite, got {v!r}")
+        if positive and x <= 0:
+            raise self.error(key, f"must be positive, got {v!r}")
+        return x
+
+    def integer(self, key: str, default: Any = _MISSING, *, minimum: int | None = None) -> int:
+        v = self.raw(key, default)
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise self.error(key, f"must be an integer, got {v!r}")
+        if minimum is not None and v < minimum:
+            raise self.error(key, f"must be >= {minimum}, got {v}")
+        return v
+
+    def vector(self, key: str, length: int, default: Any = _MISSING, *, angle: bool = False) -> list[float]:
+        v = self.raw(key, default)
+        if not isinstance(v, list) or len(v) != length:
+            raise self.error(key, f"must be a list of {length} numbers, got {v!r}")
+        out = []
+        for i, item in enumerate(v):
+            try:
+                x = parse_angle(item) if angle else _plain_number(item)
+            except ValueError as e:
+                raise self.error(f"{key}[{i}]", str(e)) from None
+            if not math.isfinite(x):
+                raise self.error(f"{key}[{i}]", f"must be finite, got {item!r}")
+            out.append(x)
+        return out
+
+    def table(self, key: str, default: Any = _MISSING) -> _Table:
+        v = self.raw(key, default)
+        return _Table(self.file, v, self.field(key))
+
+    def tables(self, key: str) -> list[_Table]:
+        v = self.raw(key, [])
+        if not isinstance(v, list):
+            raise self.error(key, "must be an array of tables ([[" + self.field(key) + "]])")
+        return [_Table(self.file, item, f"{self.field(key)}[{i}]") for i, item in enumerate(v)]
+
+    def finish(self) -> None:
+        unknown = sorted(set(self.data) - self.used)
+        if unknown:
+            raise self.error(
+                unknown[0],
+                f"unknown key; {'this table has' if self.used else 'no keys are expected here'}"
+                + (f": {', '.join(sorted(self.used))}" if self.used else ""),
+            )
+
+
+def _plain_number(v: Any) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise ValueError(f"expected a number, got {v!r}")
+    return float(v)
+
+
+# -- the catalogue -------------------------------------------------------------------------
+
+
+def names() -> list[str]:
+    """The catalogue's arms, sorted."""
+    return sorted(p.parent.name for p in CATALOGUE_DIR.glob("*/robot.toml"))
+
+
+@functools.cache
+def _load_catalogue(name: str) -> Robot:
+    return load_folder(CATALOGUE_DIR / name)
+
+
+def load(name: str) -> Robot:
+    """The catalogue arm ``name`` (loaded once, then shared; a Robot is read-only)."""
+    if not isinstance(name, str) or name not in names():
+        raise UnknownRobot(str(name), names())
+    return _load_catalogue(name)
+
+
+def load_dir(path: str | Path) -> dict[str, Robot]:
+    """Every arm in a user's folder: its sub-folders holding ``robot.toml``, or the folder itself."""
+    root = Path(path)
+    if not root.is_dir():
+        raise RobotFileError(str(root), None, "is not a folder")
+    if (root / "robot.toml").is_file():
+        robot = load_folder(root)
+        return {robot.name: robot}
+    folders = sorted(p.parent for p in root.glob("*/robot.toml"))
+    if not folders:
+        raise RobotFileError(str(root), None, "holds no arm: expected sub-folders with a robot.toml")
+    return {f.name: load_folder(f) for f in folders}
+
+
+def load_folder(folder: str | Path) -> Robot:
+    """Build a :class:`Robot` from one arm folder (``robot.toml`` + its URDF)."""
+    folder = Path(folder)
+    toml_path = folder / "robot.toml"
+    file = str(toml_path)
+    if not toml_path.is_file():
+        raise RobotFileError(file, None, "not found")
+    try:
+        with toml_path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as e:
+        raise RobotFileError(file, None, f"is not valid TOML: {e}") from None
+    return _Builder(folder, file, doc).build()
+
+
+class _Builder:
+    def __init__(self, folder: Path, file: str, doc: dict[str, Any]) -> None:
+        self.folder = folder
+        self.file = file
+        self.top = _Table(file, doc, "")
+
+    def build(self) -> Robot:
+        top = self.top
+        meta = top.table("robot")
+        title = meta.string("title", folder_title := self.folder.name)
+        del folder_title
+        meta.raw("seeds", [])
+        urdf_name = meta.string("urdf", "robot.urdf")
+        base_frame = meta.string("base_frame", "base")
+        tool_frame = meta.string("tool_frame", "tool")
+        joints_raw = meta.raw("joints")
+        if not (isinstance(joints_raw, list) and joints_raw and all(isinstance(j, str) for j in joints_raw)):
+            raise meta.error("joints", f"must be a non-empty list of URDF joint names, got {joints_raw!r}")
+        joint_names = tuple(joints_raw)
+        if len(set(joint_names)) != len(joint_names):
+            raise meta.error("joints", "lists a joint twice")
+
+        model = self._load_urdf(urdf_name, meta)
+        self._check_joints(model, joint_names, meta, urdf_name)
+        frames = {f.name for f in model.frames}
+        for key, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
+            if frame not in frames:
+                raise meta.error(key, f"{urdf_name} has no frame {frame!r}; frames: {', '.join(sorted(frames))}")
+
+        n = len(joint_names)
+        index = {j: i for i, j in enumerate(joint_names)}
+        limits = self._limits(model, joint_names, index, top.table("joints"), top.tables("coupled_limits"),
+                              urdf_name)
+        neutral = np.array(meta.vector("neutral", n, [0.0] * n, angle=True))
+        bad = limits.violations(neutral)
+        if bad:
+            raise meta.error("neutral", f"is outside the limits: {bad[0].message}")
+        meta.finish()
+
+        geometry = self._geometry(top, index, model, tool_frame, limits) if top.has("geometry") else None
+        actuators, gripper = self._actuators(top, index, limits)
+        sensors = self._sensors(top, frames)
+        controller: dict[str, object] = {}
+        if top.has("controller"):
+            ctl = top.table("controller")
+            controller = dict(ctl.data)
+            ctl.used.update(ctl.data)
+        top.finish()
+        return Robot(
+            name=self.folder.name,
+            title=title,
+            folder=self.folder,
+            model=model,
+            tool_frame=tool_frame,
+            base_frame=base_frame,
+            joint_names=joint_names,
+            limits=limits,
+            actuators=actuators,
+            gripper=gripper,
+            geometry=geometry,
+            sensors=sensors,
+            neutral=neutral,
+            controller=controller,
+        )
+
+    def _load_urdf(self, urdf_name: str, meta: _Table) -> pin.Model:
+        urdf_path = self.folder / urdf_name
+        if not urdf_path.is_file():
+            raise meta.error("urdf", f"{urdf_path} not found")
+        try:
+            return pin.buildModelFromUrdf(str(urdf_path), mimic=True)
+        except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++
+            raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
+
+    def _check_joints(self, model: pin.Model, joint_names: tuple[str, ...], meta: _Table, urdf_name: str) -> None:
+        actuated = [
+            model.names[i] for i in range(1, model.njoints) if model.joints[i].nq > 0
+        ]
+        if model.nq != model.nv or any(model.joints[i].nq not in (0, 1) for i in range(1, model.njoints)):
+            raise RobotFileError(str(self.folder / urdf_name), None,
+                                 "only revolute and prismatic joints (and mimic joints) are supported")
+        if list(joint_names) != actuated:
+            missing = [j for j in joint_names if j not in actuated]
+            if missing:
+                raise meta.error("joints", f"{urdf_name} has no movable joint {missing[0]!r}; "
+                                 f"its movable joints are: {', '.join(actuated)}")
+            raise meta.error("joints", f"must list every movable joint of {urdf_name} in chain order: "
+                             f"{', '.join(actuated)}")
+
+    def _limits(self, model: pin.Model, joint_names: tuple[str, ...], index: dict[str, int],
+                joints: _Table, coupled_tables: list[_Table], urdf_name: str) -> JointLimits:
+        n = len(joint_names)
+        lower = np.array(model.lowerPositionLimit[:n], dtype=float)
+        upper = np.array(model.upperPositionLimit[:n], dtype=float)
+        velocity = np.array(model.velocityLimit[:n], dtype=float)
+        acceleration = np.zeros(n)
+        jerk = np.zeros(n)
+        for key in joints.data:
+            if key not in index:
+                raise joints.error(key, f"is not a joint of this arm; joints: {', '.join(joint_names)}")
+        for i, name in enumerate(joint_names):
+            if not joints.has(name):
+                raise joints.error(name, "is required: every joint needs acceleration and jerk limits")
+            jt = joints.table(name)
+            lower[i] = jt.number("lower", lower[i], angle=True)
+            upper[i] = jt.number("upper", upper[i], angle=True)
+            velocity[i] = jt.number("velocity", velocity[i])
+            acceleration[i] = jt.number("acceleration", positive=True)
+            jerk[i] = jt.number("jerk", positive=True)
+            jt.finish()
+            if not (np.isfinite(lower[i]) and np.isfinite(upper[i]) and lower[i] < upper[i]):
+                raise jt.error(None, f"position limits must be finite with lower < upper; got "
+                               f"[{lower[i]}, {upper[i]}] (from {urdf_name} <limit> or this table)")
+            if not (np.isfinite(velocity[i]) and velocity[i] > 0):
+                raise jt.error("velocity", f"must be positive: set <limit velocity> in {urdf_name} or "
+                               f"'velocity' here, got {velocity[i]}")
+        coupled = []
+        for ct in coupled_tables:
+            cname = ct.string("name")
+            coeffs_t = ct.table("coefficients")
+            coeffs = np.zeros(n)
+            for key in coeffs_t.data:
+                if key not in index:
+                    raise coeffs_t.error(key, f"is not a joint of this arm; joints: {', '.join(joint_names)}")
+                coeffs[index[key]] = coeffs_t.number(key)
+            coeffs_t.finish()
+            if not np.any(coeffs):
+                raise ct.error("coefficients", "must name at least one joint with a non-zero coefficient")
+            lo = ct.number("lower", -math.inf) if ct.has("lower") else -math.inf
+            hi = ct.number("upper", math.inf) if ct.has("upper") else math.inf
+            if not lo < hi:
+                raise ct.error("upper", f"must be greater than lower ({lo} < {hi})")
+            ct.finish()
+            coupled.append(CoupledLimit(cname, coeffs, lo, hi))
+        return JointLimits(joint_names, lower, upper, velocity, acceleration, jerk, tuple(coupled))
+
+    def _geometry(self, top: _Table, index: dict[str, int], model: pin.Model, tool_frame: str,
+                  limits: JointLimits) -> Geometry:
+        g = top.table("geometry")
+
+        def joint(key: str, required: bool = True) -> int | None:
+            if not required and not g.has(key):
+                return None
+            name = g.string(key)
+            if name not in index:
+                raise g.error(key, f"{name!r} is not a joint of this arm; joints: {', '.join(index)}")
+            return index[name]
+
+        yaw = joint("yaw")
+        shoulder = joint("shoulder")
+        elbow = joint("elbow")
+        wrist = joint("wrist", required=False)
+        pitch = g.string("pitch", "joints")
+        if pitch not in ("joints", "level"):
+            raise g.error("pitch", f"must be 'joints' or 'level', got {pitch!r}")
+        geom = Geometry(
+            yaw=yaw,  # type: ignore[arg-type]
+            shoulder=shoulder,  # type: ignore[arg-type]
+            elbow=elbow,  # type: ignore[arg-type]
+            wrist=wrist,
+            pivot=tuple(g.vector("pivot", 3)),  # type: ignore[arg-type]
+            upper_arm=g.number("upper_arm", positive=True),
+            forearm=g.number("forearm", positive=True),
+            hand=g.number("hand", 0.0),
+            tool_offset=tuple(g.vector("tool_offset", 2, [0.0, 0.0])),  # type: ignore[arg-type]
+            level=pitch == "level",
+        )
+        g.finish()
+        used = [geom.yaw, geom.shoulder, geom.elbow] + ([geom.wrist] if geom.wrist is not None else [])
+        if len(set(used)) != len(used):
+            raise g.error(None, "yaw, shoulder, elbow and wrist must be different joints")
+        if geom.hand < 0:
+            raise g.error("hand", f"must be >= 0, got {geom.hand}")
+        if geom.wrist is None and geom.hand != 0:
+            raise g.error("hand", "needs a wrist joint: without one, fold the hand into forearm or tool_offset")
+        if geom.level and geom.wrist is not None:
+            raise g.error("pitch", "'level' (held by a linkage) excludes a wrist joint")
+        self._check_geometry(g, geom, model, tool_frame, limits)
+        return geom
+
+    def _check_geometry(self, g: _Table, geom: Geometry, model: pin.Model, tool_frame: str,
+                        limits: JointLimits) -> None:
+        """The family's FK must describe the URDF: a gross mismatch is a data error.
+
+        Small mismatches are allowed (an ideal model, as in seed 004): the QP refinement
+        on the exact model removes them.
+        """
+        rng = np.random.default_rng(0)
+        data = model.createData()
+        fid = model.getFrameId(tool_frame)
+        reach = geom.upper_arm + geom.forearm + geom.hand + math.hypot(*geom.tool_offset)
+        worst = 0.0
+        for _ in range(16):
+            q = rng.uniform(limits.lower, limits.upper)
+            pin.forwardKinematics(model, data, q)
+            p = pin.updateFramePlacement(model, data, fid).translation
+            worst = max(worst, float(np.linalg.norm(p - geom.fk(q))))
+        if worst > 0.05 * reach:
+            raise g.error(None, f"does not describe the URDF: the family's FK is {worst:.4g} m from the URDF's "
+                          "tool point at some configurations (check pivot, lengths and joint names)")
+
+
+    def _actuators(self, top: _Table, index: dict[str, int], limits: JointLimits) -> tuple[ActuatorMap, Gripper | None]:
+        n = len(index)
+        servo_defaults = top.table("servo", {})
+        us_per_90 = servo_defaults.number("us_per_90deg", 1000.0, positive=True)
+        default_range = servo_defaults.vector("pulse_range", 2, [500.0, 2500.0])
+        servo_defaults.finish()
+        tables = top.tables("actuators")
+        if not tables:
+            raise top.error("actuators", "is required: one [[actuators]] table per actuator")
+        actuators: list[Actuator] = []
+        rows = np.zeros((len(tables), n))
+        offsets = np.zeros(len(tables))
+        channels: dict[int, str] = {}
+        axes: dict[str, str] = {}
+        for k, t in enumerate(tables):
+            name = t.string("name")
+            if name in [a.name for a in actuators]:
+                raise t.error("name", f"{name!r} is used twice")
+            coeffs = t.table("joints")
+            for key in coeffs.data:
+                if key not in index:
+                    raise coeffs.error(key, f"is not a joint of this arm; joints: {', '.join(index)}")
+                rows[k, index[key]] = coeffs.number(key)
+            coeffs.finish()
+            if not np.any(rows[k]):
+                raise t.error("joints", "must give at least one joint a non-zero coefficient (a = M q + b)")
+            offsets[k] = t.number("offset", 0.0, angle=True)
+            reach = _row_range(rows[k], offsets[k], limits)
+            kind = t.string("type")
+            if t.has("angle_range"):
+                angle_range = tuple(t.vector("angle_range", 2, angle=True))
+                if not angle_range[0] < angle_range[1]:
+                    raise t.error("angle_range", "must be [lower, upper] with lower < upper")
+            else:
+                angle_range = reach
+            act: Actuator
+            if kind == "servo":
+                channel = t.integer("channel", minimum=0)
+                if channel in channels:
+                    raise t.error("channel", f"channel {channel} is already used by {channels[channel]!r}")
+                channels[channel] = name
+                direction = t.integer("direction", 1)
+                if direction not in (1, -1):
+                    raise t.error("direction", f"must be 1 or -1, got {direction}")
+                pulse_range = tuple(t.vector("pulse_range", 2, default_range))
+                act = Servo(
+                    name=name,
+                    channel=channel,
+                    centre_pulse=t.number("centre_pulse", 1500.0),
+                    centre_angle=t.number("centre_angle", 0.0, angle=True),
+                    direction=direction,
+                    us_per_rad=us_per_90 / (math.pi / 2),
+                    pulse_range=pulse_range,  # type: ignore[arg-type]
+                    angle_range=angle_range,  # type: ignore[arg-type]
+                )
+                ends = sorted(float(act.to_command(np.array(x))) for x in angle_range)
+                if ends[0] < pulse_range[0] - 1e-6 or ends[1] > pulse_range[1] + 1e-6:
+                    raise t.error(None, f"its angle range [{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad maps to "
+                                  f"pulses [{ends[0]:.1f}, {ends[1]:.1f}] us, outside its pulse range "
+                                  f"{list(pulse_range)} us: fix centre_pulse/centre_angle/direction, or narrow "
+                                  "the joint limits or angle_range")
+            elif kind == "stepper":
+                axis = t.string("axis")
+                if axis in axes:
+                    raise t.error("axis", f"axis {axis!r} is already used by {axes[axis]!r}")
+                axes[axis] = name
+                act = Stepper(
+                    name=name,
+                    axis=axis,
+                    full_steps_per_rev=t.integer("full_steps_per_rev", 200, minimum=1),
+                    microsteps=t.integer("microsteps", 1, minimum=1),
+                    gear=t.number("gear", 1.0, positive=True),
+                    angle_range=angle_range,  # type: ignore[arg-type]
+                )
+            else:
+                raise t.error("type", f"must be 'servo' or 'stepper', got {kind!r}")
+            if angle_range[0] > reach[0] + 1e-9 or angle_range[1] < reach[1] - 1e-9:
+                raise t.error("angle_range", f"[{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad does not cover what "
+                              f"the joint limits allow, [{reach[0]:.4f}, {reach[1]:.4f}] rad: narrow the joint limits")
+            t.finish()
+            actuators.append(act)
+        if np.linalg.matrix_rank(rows) < n:
+            raise top.error("actuators", "do not determine every joint: the rows of M must have rank "
+                            f"{n} (each joint driven by some actuator)")
+        gripper = None
+        if top.has("gripper"):
+            gt = top.table("gripper")
+            channel = gt.integer("channel", minimum=0)
+            if channel in channels:
+                raise gt.error("channel", f"channel {channel} is already used by {channels[channel]!r}")
+            gripper = Gripper(channel=channel, closed=gt.number("closed"), open=gt.number("open"))
+            gt.finish()
+        return ActuatorMap(tuple(actuators), rows, offsets), gripper
+
+    def _sensors(self, top: _Table, frames: set[str]) -> dict[str, RangeSensor]:
+        out: dict[str, RangeSensor] = {}
+        for t in top.tables("sensors"):
+            name = t.string("name")
+            if name in out:
+                raise t.error("name", f"{name!r} is used twice")
+            model_name = t.string("model", "range sensor")
+            rng = t.vector("range", 2)
+            if not 0 <= rng[0] < rng[1]:
+                raise t.error("range", f"must be [min, max] with 0 <= min < max [m], got {rng}")
+            mount = t.string("mount")
+            if mount == "scanner":
+                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]),
+                                        position=tuple(t.vector("position", 3)))  # type: ignore[arg-type]
+            elif mount == "frame":
+                frame = t.string("frame")
+                if frame not in frames:
+                    raise t.error("frame", f"the URDF has no frame {frame!r}")
+                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]), frame=frame)
+            else:
+                raise t.error("mount", f"must be 'scanner' or 'frame', got {mount!r}")
+            t.finish()
+        return out
+
+
+def _row_range(row: np.ndarray, offset: float, limits: JointLimits) -> tuple[float, float]:
+    """The interval an actuator angle ``row . q + offset`` spans over the joint limits.
+
+    Interval arithmetic over the box, narrowed by a coupled limit on the same combination
+    of joints (the desk4 minor servo: ``q2 + q3`` is bounded by the linkage).
+    """
+    lo = offset + float(np.sum(np.minimum(row * limits.lower, row * limits.upper)))
+    hi = offset + float(np.sum(np.maximum(row * limits.lower, row * limits.upper)))
+    for c in limits.coupled:
+        ratio = _proportional(row, c.coefficients)
+        if ratio is not None:
+            a, b = sorted((ratio * c.lower, ratio * c.upper))
+            lo, hi = max(lo, offset + a), min(hi, offset + b)
+    return lo, hi
+
+
+def _proportional(row: np.ndarray, coeffs: np.ndarray) -> float | None:
+    j = int(np.argmax(np.abs(coeffs)))
+    ratio = row[j] / coeffs[j]
+    return float(ratio) if ratio != 0 and np.allclose(row, ratio * coeffs, atol=1e-12) else None

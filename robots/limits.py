@@ -1,0 +1,94 @@
+"""Joint limits: the box ``lower <= q <= upper`` and coupled linear limits ``A q <= b``.
+
+Coupled limits come from linkages (the desk4's level-keeping linkage bounds ``q2 + q3``).
+Each is written in ``robot.toml`` as ``lower <= sum(c_i q_i) <= upper`` and kept here as
+two rows of ``A q <= b``, the form a QP takes as hard inequality constraints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import CoupledLimitError, JointLimitError
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CoupledLimit:
+    """``lower <= coefficients . q <= upper`` over the joint vector [rad]."""
+
+    name: str
+    coefficients: FloatArray
+    lower: float
+    upper: float
+
+    def value(self, q: FloatArray) -> float:
+        return float(self.coefficients @ q)
+
+
+@dataclass(frozen=True)
+class JointLimits:
+    """Position, velocity, acceleration and jerk limits of an arm, in joint order.
+
+    Units: positions [rad], velocities [rad/s], accelerations [rad/s^2], jerks [rad/s^3].
+    """
+
+    names: tuple[str, ...]
+    lower: FloatArray
+    upper: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+    jerk: FloatArray
+    coupled: tuple[CoupledLimit, ...] = ()
+
+    @property
+    def A(self) -> FloatArray:  # noqa: N802 (the conventional name)
+        """Rows of ``A q <= b`` for the coupled limits, shape (2 k, n)."""
+        n = len(self.names)
+        if not self.coupled:
+            return np.zeros((0, n))
+        rows = [c.coefficients for c in self.coupled] + [-c.coefficients for c in self.coupled]
+        return np.array(rows, dtype=float)
+
+    @property
+    def b(self) -> FloatArray:
+        """Right-hand side of ``A q <= b``, shape (2 k,)."""
+        if not self.coupled:
+            return np.zeros(0)
+        return np.array([c.upper for c in self.coupled] + [-c.lower for c in self.coupled])
+
+    def violations(self, q: FloatArray, tol: float = 1e-9) -> list[JointLimitError | CoupledLimitError]:
+        """Every limit that ``q`` breaks by more than ``tol``, as the errors that name them."""
+        out: list[JointLimitError | CoupledLimitError] = []
+        for i, name in enumerate(self.names):
+            if not (self.lower[i] - tol <= q[i] <= self.upper[i] + tol):
+                out.append(JointLimitError(name, float(q[i]), (float(self.lower[i]), float(self.upper[i]))))
+        for c in self.coupled:
+            v = c.value(q)
+            if not (c.lower - tol <= v <= c.upper + tol):
+                out.append(CoupledLimitError(c.name, v, (c.lower, c.upper)))
+        return out
+
+    def contains(self, q: FloatArray, tol: float = 1e-9) -> bool:
+        """True when ``q`` is within every position limit, box and coupled, to ``tol``."""
+        if np.any(q < self.lower - tol) or np.any(q > self.upper + tol):
+            return False
+        return all(c.lower - tol <= c.value(q) <= c.upper + tol for c in self.coupled)
+
+    def check(self, q: FloatArray, tol: float = 1e-9) -> None:
+        """Raise the first limit error of ``q``, if any."""
+        errors = self.violations(q, tol)
+        if errors:
+            raise errors[0]
+
+    def contains_batch(self, qs: FloatArray, tol: float = 1e-9) -> NDArray[np.bool_]:
+        """Vectorised :meth:`contains` over rows of ``qs``, shape (m, n) -> (m,)."""
+        ok = np.all((qs >= self.lower - tol) & (qs <= self.upper + tol), axis=1)
+        for c in self.coupled:
+            v = qs @ c.coefficients
+            ok &= (v >= c.lower - tol) & (v <= c.upper + tol)
+        return ok

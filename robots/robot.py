@@ -1,0 +1,231 @@
+"""The :class:`Robot`: one arm's model, limits, actuators and forward kinematics.
+
+A Robot is built once at start-up by :mod:`robots.catalogue` from a folder holding
+``robot.urdf`` and ``robot.toml``, and is read-only afterwards, so threads may share it:
+the Pinocchio ``Data`` that FK writes into is kept per thread.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+from numpy.typing import NDArray
+
+from .actuators import ActuatorMap, Gripper
+from .errors import BadRequest
+from .geometry import Geometry
+from .limits import JointLimits
+from .sensors import RangeSensor
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ToolPose:
+    """Tool point [m] in ``base`` and tool pitch [rad] (angle of the tool axis to the horizontal)."""
+
+    position: FloatArray
+    pitch: float
+
+
+class Robot:
+    """One arm of the catalogue (or of a user's folder).
+
+    Attributes:
+        name: catalogue name (the folder's name).
+        joint_names: URDF joint names, in the order of the joint vector ``q``.
+        limits: position (box and coupled), velocity, acceleration and jerk limits.
+        actuators: the actuator map ``a = M q + b`` and each actuator's command units.
+        gripper: the gripper actuator, if any.
+        geometry: parameters of the closed-form solver's family, if the arm belongs to it.
+        sensors: range sensors by name.
+        neutral: the rest configuration [rad].
+        model: the Pinocchio model built from ``robot.urdf`` (mimic joints resolved).
+    """
+
+    def __init__(
+        self,
+        *,
+        name: str,
+        title: str,
+        folder: Path,
+        model: pin.Model,
+        tool_frame: str,
+        base_frame: str,
+        joint_names: tuple[str, ...],
+        limits: JointLimits,
+        actuators: ActuatorMap,
+        gripper: Gripper | None,
+        geometry: Geometry | None,
+        sensors: dict[str, RangeSensor],
+        neutral: FloatArray,
+        controller: dict[str, object],
+    ) -> None:
+        self.name = name
+        self.title = title
+        self.folder = folder
+        self.model = model
+        self.tool_frame = tool_frame
+        self.base_frame = base_frame
+        self.tool_frame_id = model.getFrameId(tool_frame)
+        self.joint_names = joint_names
+        self.limits = limits
+        self.actuators = actuators
+        self.gripper = gripper
+        self.geometry = geometry
+        self.sensors = sensors
+        self.neutral = neutral
+        self.controller = controller
+        self._local = threading.local()
+
+    def __repr__(self) -> str:
+        return f"Robot({self.name!r}, joints={list(self.joint_names)})"
+
+    @property
+    def nq(self) -> int:
+        return len(self.joint_names)
+
+    # -- input checking ----------------------------------------------------------------
+
+    def joint_vector(self, q: object, field: str = "q") -> FloatArray:
+        """``q`` as a float array of this arm's length, all finite; else :class:`BadRequest`."""
+        try:
+            arr = np.asarray(q, dtype=float)
+        except (TypeError, ValueError):
+            raise BadRequest(f"{field} must be a list of {self.nq} numbers [rad]", field=field) from None
+        if arr.shape != (self.nq,):
+            raise BadRequest(
+                f"{field} must have {self.nq} values ({', '.join(self.joint_names)}), got shape {list(arr.shape)}",
+                field=field,
+            )
+        if not np.all(np.isfinite(arr)):
+            raise BadRequest(f"{field} must be finite numbers, got {arr.tolist()}", field=field)
+        return arr
+
+    # -- kinematics ----------------------------------------------------------------------
+
+    def _data(self) -> pin.Data:
+        data = getattr(self._local, "data", None)
+        if data is None:
+            data = self.model.createData()
+            self._local.data = data
+        return data
+
+    def _tool_placement(self, q: FloatArray) -> pin.SE3:
+        data = self._data()
+        pin.forwardKinematics(self.model, data, q)
+        return pin.updateFramePlacement(self.model, data, self.tool_frame_id)
+
+    def fk(self, q: Sequence[float] | FloatArray) -> FloatArray:
+        """Tool point [m] in ``base`` for joint vector ``q`` [rad] (Pinocchio, exact model)."""
+        return np.array(self._tool_placement(np.asarray(q, dtype=float)).translation)
+
+    def pose(self, q: Sequence[float] | FloatArray) -> ToolPose:
+        """Tool point [m] and tool pitch [rad] for ``q``."""
+        qa = np.asarray(q, dtype=float)
+        placement = self._tool_placement(qa)
+        return ToolPose(np.array(placement.translation), self._pitch(qa, placement.rotation))
+
+    def tool_pitch(self, q: Sequence[float] | FloatArray) -> float:
+        """Angle [rad] of the tool axis (the tool frame's +x) to the horizontal, in (-pi, pi].
+
+        Measured in the arm's vertical plane (forward is the yaw direction), so a tool
+        pointing back and down has a pitch beyond -pi/2. 0 is level ("parallel"), -pi/2
+        points straight down ("perpendicular").
+        """
+        qa = np.asarray(q, dtype=float)
+        return self._pitch(qa, self._tool_placement(qa).rotation)
+
+    def _pitch(self, q: FloatArray, rotation: FloatArray) -> float:
+        d = rotation[:, 0]
+        if self.geometry is None:
+            return math.atan2(d[2], math.hypot(d[0], d[1]))
+        yaw = q[self.geometry.yaw]
+        return math.atan2(d[2], d[0] * math.cos(yaw) + d[1] * math.sin(yaw))
+
+    def jacobian(self, q: Sequence[float] | FloatArray) -> FloatArray:
+        """Jacobian of the tool point [m/rad], shape (3, nq), in ``base`` axes."""
+        qa = np.asarray(q, dtype=float)
+        data = self._data()
+        J = pin.computeFrameJacobian(self.model, data, qa, self.tool_frame_id, pin.LOCAL_WORLD_ALIGNED)
+        return np.array(J[:3, :])
+
+    def frame_position(self, q: Sequence[float] | FloatArray, frame: str) -> FloatArray:
+        """Origin [m] of any URDF frame, in ``base``."""
+        fid = self.model.getFrameId(frame)
+        if fid >= self.model.nframes:
+            frames = sorted({f.name for f in self.model.frames})
+            raise BadRequest(f"unknown frame {frame!r}; frames: {', '.join(frames)}", field="frame")
+        data = self._data()
+        pin.forwardKinematics(self.model, data, np.asarray(q, dtype=float))
+        return np.array(pin.updateFramePlacement(self.model, data, fid).translation)
+
+    # -- sensors ----------------------------------------------------------------------
+
+    def sensor_point(
+        self, sensor: str, distance: float, bearing: float = 0.0, q: FloatArray | None = None
+    ) -> FloatArray:
+        """The base-frame point [m] that a range-sensor reading sees.
+
+        Scanner sensors use (``distance`` [m], ``bearing`` [rad]); a sensor on an arm frame
+        looks along that frame's +x and needs the joint vector ``q``.
+        """
+        if sensor not in self.sensors:
+            raise BadRequest(
+                f"unknown sensor {sensor!r} on {self.name}; sensors: {', '.join(sorted(self.sensors)) or '(none)'}",
+                field="sensor",
+            )
+        s = self.sensors[sensor]
+        if s.mount == "scanner":
+            return s.scanner_point(distance, bearing)
+        if q is None:
+            raise BadRequest(f"sensor {sensor!r} is on frame {s.frame!r}: its reading needs the joint vector q",
+                             field="q")
+        d = s.check_range(distance)
+        qa = self.joint_vector(q)
+        assert s.frame is not None
+        fid = self.model.getFrameId(s.frame)
+        data = self._data()
+        pin.forwardKinematics(self.model, data, qa)
+        placement = pin.updateFramePlacement(self.model, data, fid)
+        return np.array(placement.translation + d * placement.rotation[:, 0])
+
+    # -- description -----------------------------------------------------------------------
+
+    def describe(self) -> dict[str, object]:
+        """A JSON-ready summary: joints, limits, actuators, sensors (the protocol's ``info``)."""
+        lim = self.limits
+        return {
+            "name": self.name,
+            "title": self.title,
+            "joints": [
+                {
+                    "name": n,
+                    "lower": float(lim.lower[i]),
+                    "upper": float(lim.upper[i]),
+                    "velocity": float(lim.velocity[i]),
+                    "acceleration": float(lim.acceleration[i]),
+                    "jerk": float(lim.jerk[i]),
+                }
+                for i, n in enumerate(self.joint_names)
+            ],
+            "coupled_limits": [
+                {"name": c.name, "coefficients": c.coefficients.tolist(), "lower": c.lower, "upper": c.upper}
+                for c in lim.coupled
+            ],
+            "actuators": [
+                {"name": a.name, "kind": a.kind, "unit": a.unit, "row": self.actuators.M[j].tolist(),
+                 "offset": float(self.actuators.b[j])}
+                for j, a in enumerate(self.actuators.actuators)
+            ],
+            "sensors": sorted(self.sensors),
+            "neutral": self.neutral.tolist(),
+            "wrist": bool(self.geometry and self.geometry.has_wrist),
+            "tool_pitch": "level" if self.geometry and self.geometry.level else "joints",
+        }

@@ -1,0 +1,76 @@
+"""The ``armd`` command line.
+
+``armd catalogue`` prints the arms armd knows (the built-in catalogue, plus a user's
+``--robots-dir``), offline, with their joints and limits.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections.abc import Sequence
+
+import robots
+from robots import ArmdError, Robot
+
+
+def _all_robots(robots_dir: str | None) -> dict[str, Robot]:
+    arms = {name: robots.load(name) for name in robots.names()}
+    if robots_dir:
+        arms.update(robots.load_dir(robots_dir))
+    return arms
+
+
+def _deg(x: float) -> str:
+    return f"{math.degrees(x):7.1f}"
+
+
+def cmd_catalogue(args: argparse.Namespace) -> int:
+    arms = _all_robots(args.robots_dir)
+    if args.json:
+        print(json.dumps({name: arm.describe() for name, arm in arms.items()}, indent=2))
+        return 0
+    for name, arm in arms.items():
+        reach = arm.fk(arm.neutral)
+        print(f"{name}: {arm.title}")
+        print(f"  neutral tool point [m]: ({reach[0]:.4f}, {reach[1]:.4f}, {reach[2]:.4f})")
+        print(f"  {'joint':<12} {'lower':>7} {'upper':>7}  deg   {'vmax':>6} {'amax':>6} {'jmax':>6}  (rad/s^k)")
+        lim = arm.limits
+        for i, j in enumerate(arm.joint_names):
+            print(f"  {j:<12} {_deg(lim.lower[i])} {_deg(lim.upper[i])}      "
+                  f"{lim.velocity[i]:6.2f} {lim.acceleration[i]:6.1f} {lim.jerk[i]:6.1f}")
+        for c in lim.coupled:
+            terms = " + ".join(f"{k:g}*{arm.joint_names[i]}" for i, k in enumerate(c.coefficients) if k)
+            print(f"  coupled {c.name}: {c.lower:g} <= {terms} <= {c.upper:g} rad")
+        acts = ", ".join(f"{a.name} ({a.kind})" for a in arm.actuators.actuators)
+        print(f"  actuators: {acts}")
+        if arm.sensors:
+            print(f"  sensors: {', '.join(sorted(arm.sensors))}")
+        print()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p = sub.add_parser("catalogue", help="print the arms armd knows, offline")
+    p.add_argument("--robots-dir", help="a folder of your own arms (robot.urdf + robot.toml each)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    p.set_defaults(func=cmd_catalogue)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ArmdError as e:
+        print(f"armd: error: {e.message}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
