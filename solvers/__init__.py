@@ -1,0 +1,32 @@
+"""armd's solvers: closed-form geometric IK seeds refined by a QP with hard joint limits.
+
+>>> import robots, solvers
+>>> arm = robots.load("insomniac")
+>>> r = solvers.solve_ik(arm, [0.25, 0.05, 0.12], approach="perpendicular")
+>>> r.status, r.position_error < 1e-9
+('ok', True)
+"""
+
+from .geometric import FamilyParams
+from .ik import DEFAULT_TOLERANCE, solve_ik
+from .qp import QPRefiner, Refined
+from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
+from .target import PARALLEL, PERPENDICULAR, SensorReading, approach_pitch, target_point
+
+__all__ = [
+    "APPROXIMATE",
+    "DEFAULT_TOLERANCE",
+    "OK",
+    "PARALLEL",
+    "PERPENDICULAR",
+    "UNREACHABLE",
+    "Branch",
+    "FamilyParams",
+    "IKResult",
+    "QPRefiner",
+    "Refined",
+    "SensorReading",
+    "approach_pitch",
+    "solve_ik",
+    "target_point",
+]

@@ -1,0 +1,82 @@
+"""IK answers: :class:`IKResult` and the :class:`Branch` es it chose among."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+OK = "ok"
+APPROXIMATE = "approximate"
+UNREACHABLE = "unreachable"
+
+
+@dataclass(frozen=True)
+class Branch:
+    """One valid IK solution: its name (``front/elbow_up`` ...), ``q`` [rad] and its errors."""
+
+    name: str
+    q: FloatArray
+    position_error: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "q": self.q.tolist(), "position_error": self.position_error}
+
+
+@dataclass(frozen=True)
+class IKResult:
+    """The answer to one IK request.
+
+    Attributes:
+        status: ``"ok"`` (on the target within tolerance, with the asked pitch),
+            ``"approximate"`` (on the target, but the asked pitch or an exact position was
+            not possible: see ``reason``), ``"unreachable"`` (the closest configuration
+            within limits; ``position_error`` says how far it stays).
+        q: the joint vector [rad], always within every joint limit.
+        position_error: distance [m] from the tool point at ``q`` to the target.
+        reached: the tool point [m] at ``q``, in ``base``.
+        target: the target point [m], in ``base``.
+        pitch: the tool pitch [rad] at ``q``.
+        pitch_error: reached minus asked pitch [rad], wrapped; None when the pitch was free.
+        branch: the name of the chosen branch (``front``/``flipped`` yaw, elbow ``up``/``down``),
+            or ``"numerical"`` when the QP produced it.
+        branches: every other valid branch, nearest to the seed first.
+        iterations: QP refinement iterations used (0: the closed form was exact).
+        reason: why the status is not ``ok``; None when it is.
+    """
+
+    status: str
+    q: FloatArray
+    position_error: float
+    reached: FloatArray
+    target: FloatArray
+    pitch: float
+    pitch_error: float | None
+    branch: str
+    branches: tuple[Branch, ...] = field(default=())
+    iterations: int = 0
+    reason: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == OK
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (the protocol's IK reply)."""
+        return {
+            "status": self.status,
+            "q": self.q.tolist(),
+            "position_error": self.position_error,
+            "reached": self.reached.tolist(),
+            "target": self.target.tolist(),
+            "pitch": self.pitch,
+            "pitch_error": self.pitch_error,
+            "branch": self.branch,
+            "branches": [b.to_dict() for b in self.branches],
+            "iterations": self.iterations,
+            "reason": self.reason,
+        }
