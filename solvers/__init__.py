@@ -7,6 +7,7 @@
 ('ok', True)
 """
 
+from .batch import BatchIKResult, solve_ik_batch
 from .geometric import FamilyParams
 from .ik import DEFAULT_TOLERANCE, solve_ik
 from .qp import QPRefiner, Refined
@@ -20,6 +21,7 @@ __all__ = [
     "PARALLEL",
     "PERPENDICULAR",
     "UNREACHABLE",
+    "BatchIKResult",
     "Branch",
     "FamilyParams",
     "IKResult",
@@ -28,5 +30,6 @@ __all__ = [
     "SensorReading",
     "approach_pitch",
     "solve_ik",
+    "solve_ik_batch",
     "target_point",
 ]

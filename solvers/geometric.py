@@ -2,7 +2,7 @@
 pitch + fixed tool offsets" (seeds 000-004 are all instances; parameters from
 ``[geometry]`` in robot.toml, see :mod:`robots.geometry`).
 
-For a target point (and a tool pitch ``phi`` when the arm has a wrist) it returns every
+For a target point (and a tool pitch ``phi`` when the arm has a wrist) it gives every
 branch: the yaw pointing at the target (``front``) or away from it with the arm reaching
 back over the top (``flipped``), times elbow ``up``/``down``. It generalises the seeds:
 
@@ -13,9 +13,10 @@ back over the top (``flipped``), times elbow ``up``/``down``. It generalises the
   (seed 000 eq. 1 for ``phi`` = 0 and -pi/2);
 * the wrist is ``phi - shoulder - elbow`` (seed 000 eq. 12-13).
 
-Joint values are wrapped by multiples of 2 pi into the joint limits where possible; the
-caller checks the limits. :func:`branches` is the scalar path (one target, fast in plain
-Python); :func:`branches_batch` is the same mathematics vectorised with NumPy.
+The functions are compiled with Numba (plain floats and small arrays, no Python objects),
+so one closed-form solve costs about a microsecond, and the same code serves the single
+and the batch IK. Parameters travel as arrays: ``P = [px, py, pz, l1, l2, l3, ox, oz]``
+and ``J = [yaw, shoulder, elbow, wrist]`` joint indices (``wrist = -1``: none).
 """
 
 from __future__ import annotations
@@ -23,175 +24,169 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from robots import Robot
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 TWO_PI = 2.0 * math.pi
-_REACH_EPS = 1e-12  # slack on |cos(elbow)| <= 1 for targets exactly on the workspace boundary
+REACH_EPS = 1e-12  # slack on |cos(elbow)| <= 1 for targets exactly on the workspace boundary
 
 BRANCH_NAMES = ("front/elbow_up", "front/elbow_down", "flipped/elbow_up", "flipped/elbow_down")
+_FRONT, _FLIPPED = 0, 2  # branch id = side + (0 up | 1 down)
+
+jit = numba.njit(cache=True, nogil=True)
 
 
 @dataclass(frozen=True)
 class FamilyParams:
-    """The family's numbers as plain floats and joint indices (read once per robot)."""
+    """The family's numbers as the arrays the compiled functions take (read once per robot)."""
 
+    P: FloatArray  # px, py, pz, l1, l2, l3, ox, oz [m]
+    J: IntArray  # yaw, shoulder, elbow, wrist joint indices; wrist -1 when there is none
     n: int
-    yaw: int
-    shoulder: int
-    elbow: int
-    wrist: int | None
-    px: float
-    py: float
-    pz: float
-    l1: float
-    l2: float
-    l3: float
-    ox: float
-    oz: float
+
+    @property
+    def has_wrist(self) -> bool:
+        return bool(self.J[3] >= 0)
 
     @classmethod
     def of(cls, robot: Robot) -> FamilyParams:
         g = robot.geometry
         if g is None:
             raise ValueError(f"{robot.name} has no [geometry]: it is not of the closed-form family")
-        return cls(
-            n=robot.nq, yaw=g.yaw, shoulder=g.shoulder, elbow=g.elbow, wrist=g.wrist,
-            px=g.pivot[0], py=g.pivot[1], pz=g.pivot[2], l1=g.upper_arm, l2=g.forearm,
-            l3=g.hand if g.wrist is not None else 0.0, ox=g.tool_offset[0], oz=g.tool_offset[1],
-        )
+        hand = g.hand if g.wrist is not None else 0.0
+        P = np.array([g.pivot[0], g.pivot[1], g.pivot[2], g.upper_arm, g.forearm, hand,
+                      g.tool_offset[0], g.tool_offset[1]])
+        J = np.array([g.yaw, g.shoulder, g.elbow, -1 if g.wrist is None else g.wrist], dtype=np.int64)
+        return cls(P, J, robot.nq)
 
 
-def branches(
-    fp: FamilyParams, x: float, y: float, z: float, phi: float | None
-) -> list[tuple[str, float, float, float, float]]:
+@jit
+def wrap_angle(x: float) -> float:
+    """``x`` wrapped into [-pi, pi) [rad]."""
+    return x - TWO_PI * math.floor(x / TWO_PI + 0.5)
+
+
+@jit
+def wrap_into(value: float, lower: float, upper: float, ref: float, tol: float) -> tuple[bool, float]:
+    """``value + 2 pi k`` inside [lower, upper] (nearest ``ref`` if several): (found, value)."""
+    if lower <= value <= upper and upper - lower < TWO_PI - 2.0 * tol:
+        return True, value  # the only candidate: no other k fits in an interval narrower than 2 pi
+    found = False
+    best = value
+    k0 = math.floor((lower - value) / TWO_PI)
+    for dk in range(3):
+        v = value + (k0 + dk) * TWO_PI
+        if lower - tol <= v <= upper + tol:
+            v = min(max(v, lower), upper)
+            if not found or abs(v - ref) < abs(best - ref):
+                best = v
+                found = True
+    return found, best
+
+
+@jit
+def two_link(p: float, q: float, tx: float, ty: float, out: FloatArray) -> int:
+    """Planar two-link (lengths p, q) reaching (tx, ty); writes rows (absolute angle 1, relative
+    angle 2) into ``out`` (2, 2) and returns how many (0, 1 when straight or folded, or 2)."""
+    if p < REACH_EPS or q < REACH_EPS:
+        return 0
+    c = (tx * tx + ty * ty - p * p - q * q) / (2.0 * p * q)
+    if c > 1.0:
+        if c > 1.0 + REACH_EPS:
+            return 0
+        c = 1.0
+    elif c < -1.0:
+        if c < -1.0 - REACH_EPS:
+            return 0
+        c = -1.0
+    s = math.sqrt(max(0.0, 1.0 - c * c))
+    base = math.atan2(ty, tx)
+    count = 0
+    for sign in (1.0, -1.0):
+        s2 = sign * s
+        out[count, 0] = base - math.atan2(q * s2, p + q * c)
+        out[count, 1] = math.atan2(s2, c)
+        count += 1
+        if s == 0.0:
+            break
+    return count
+
+
+@jit
+def branches(P: FloatArray, has_wrist: bool, x: float, y: float, z: float, phi: float, out: FloatArray) -> int:
     """Every branch for target (x, y, z) [m] and tool pitch ``phi`` [rad] (ignored without a wrist).
 
-    Returns (name, yaw, shoulder, elbow, wrist) tuples, angles [rad] unwrapped; ``wrist`` is
-    0.0 for arms without one. Empty when the target is out of reach for this pitch.
+    Writes rows (branch id, yaw, shoulder, elbow, wrist) into ``out`` (4, 5), angles [rad]
+    unwrapped (wrist 0 without one); returns the number of rows (0: out of reach).
     """
-    out: list[tuple[str, float, float, float, float]] = []
-    r2 = x * x + y * y
-    py = fp.py
-    h2 = r2 - py * py
+    px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
+    h2 = x * x + y * y - py * py
     if h2 < 0.0:
-        if h2 < -_REACH_EPS:
-            return out
+        if h2 < -REACH_EPS:
+            return 0
         h2 = 0.0
     h = math.sqrt(h2)
     bearing = math.atan2(y, x)
-    l1, l2 = fp.l1, fp.l2
-    b = z - fp.pz - fp.oz
-    if fp.wrist is not None and phi is not None:
-        cphi, sphi = math.cos(phi), math.sin(phi)
-        b -= fp.l3 * sphi
-        hand_u = fp.l3 * cphi
-    else:
-        hand_u = 0.0
+    b = z - pz - oz
+    hand_u = 0.0
+    if has_wrist:
+        b -= l3 * math.sin(phi)
+        hand_u = l3 * math.cos(phi)
     denom = 2.0 * l1 * l2
-    for side, u in (("front", h), ("flipped", -h)):
-        if side == "flipped" and h == 0.0:
+    count = 0
+    for side in (_FRONT, _FLIPPED):
+        u = h if side == _FRONT else -h
+        if side == _FLIPPED and h == 0.0:
             break
         yaw = bearing - math.atan2(py, u)
-        a = u - fp.px - fp.ox - hand_u
+        a = u - px - ox - hand_u
         c2 = (a * a + b * b - l1 * l1 - l2 * l2) / denom
         if c2 > 1.0:
-            if c2 > 1.0 + _REACH_EPS:
+            if c2 > 1.0 + REACH_EPS:
                 continue
             c2 = 1.0
         elif c2 < -1.0:
-            if c2 < -1.0 - _REACH_EPS:
+            if c2 < -1.0 - REACH_EPS:
                 continue
             c2 = -1.0
         base = math.atan2(b, a)
         s2abs = math.sqrt(max(0.0, 1.0 - c2 * c2))
         k = l1 + l2 * c2
-        for up in (True, False):
+        for down in (0, 1):
             # elbow above the shoulder-wrist line: elbow < 0 when the wrist is ahead (a >= 0)
-            s2 = -s2abs if (up == (a >= 0.0)) else s2abs
+            s2 = -s2abs if ((down == 0) == (a >= 0.0)) else s2abs
             q2 = math.atan2(s2, c2)
             q1 = base - math.atan2(l2 * s2, k)
-            q3 = (phi - q1 - q2) if (fp.wrist is not None and phi is not None) else 0.0
-            out.append((f"{side}/elbow_{'up' if up else 'down'}", yaw, q1, q2, q3))
+            out[count, 0] = side + down
+            out[count, 1] = yaw
+            out[count, 2] = q1
+            out[count, 3] = q2
+            out[count, 4] = (phi - q1 - q2) if has_wrist else 0.0
+            count += 1
             if s2abs == 0.0:
-                break  # elbow straight: up and down coincide
-    return out
+                break  # elbow straight or folded: up and down coincide
+    return count
 
 
-def wrap_into(value: float, lower: float, upper: float, ref: float, tol: float = 1e-12) -> float | None:
-    """``value + 2 pi k`` inside [lower, upper] (nearest ``ref`` if several), or None."""
-    if lower <= value <= upper and upper - lower < TWO_PI - 2 * tol:
-        return value  # the only candidate: no other k fits in an interval narrower than 2 pi
-    best: float | None = None
-    k0 = math.floor((lower - value) / TWO_PI)
-    for k in range(k0, k0 + 3):
-        v = value + k * TWO_PI
-        if lower - tol <= v <= upper + tol:
-            v = min(max(v, lower), upper)
-            if best is None or abs(v - ref) < abs(best - ref):
-                best = v
-    return best
-
-
-def branches_batch(fp: FamilyParams, points: FloatArray, phi: FloatArray | None) -> dict[str, FloatArray]:
-    """Vectorised :func:`branches`: points (m, 3) [m], phi (m,) or None.
-
-    Returns, per branch name, an (m, 4) array of (yaw, shoulder, elbow, wrist) [rad], NaN
-    where the branch does not exist for that target.
-    """
-    x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    h2 = x * x + y * y - fp.py * fp.py
-    h2 = np.where((h2 < 0) & (h2 >= -_REACH_EPS), 0.0, h2)
-    with np.errstate(invalid="ignore"):
-        h = np.sqrt(h2)  # NaN where out of reach
-    bearing = np.arctan2(y, x)
-    b = z - fp.pz - fp.oz
-    has_wrist = fp.wrist is not None and phi is not None
-    if has_wrist:
-        assert phi is not None
-        b = b - fp.l3 * np.sin(phi)
-        hand_u = fp.l3 * np.cos(phi)
-    else:
-        hand_u = np.zeros_like(x)
-    out: dict[str, FloatArray] = {}
-    for side, u in (("front", h), ("flipped", -h)):
-        yaw = bearing - np.arctan2(fp.py, u)
-        a = u - fp.px - fp.ox - hand_u
-        c2 = (a * a + b * b - fp.l1 ** 2 - fp.l2 ** 2) / (2 * fp.l1 * fp.l2)
-        c2 = np.where((np.abs(c2) > 1.0) & (np.abs(c2) <= 1.0 + _REACH_EPS), np.sign(c2), c2)
-        with np.errstate(invalid="ignore"):
-            s2abs = np.sqrt(1.0 - c2 * c2)  # NaN where out of reach
-        base = np.arctan2(b, a)
-        k = fp.l1 + fp.l2 * c2
-        for up in (True, False):
-            s2 = np.where((a >= 0.0) == up, -s2abs, s2abs)
-            q2 = np.arctan2(s2, c2)
-            q1 = base - np.arctan2(fp.l2 * s2, k)
-            q3 = (phi - q1 - q2) if has_wrist else np.zeros_like(q1)
-            arr = np.stack([yaw, q1, q2, q3], axis=1)
-            arr[np.isnan(s2abs) | np.isnan(h)] = np.nan
-            if side == "flipped":
-                arr[h == 0.0] = np.nan
-            out[f"{side}/elbow_{'up' if up else 'down'}"] = arr
-    return out
-
-
-def wrap_into_batch(values: FloatArray, lower: float, upper: float, ref: FloatArray | float,
-                    tol: float = 1e-12) -> FloatArray:
-    """Vectorised :func:`wrap_into`: NaN where no ``value + 2 pi k`` fits in the limits."""
-    best = np.full_like(values, np.nan)
-    best_d = np.full_like(values, np.inf)
-    k0 = np.floor((lower - values) / TWO_PI)
-    for dk in range(3):
-        v = values + (k0 + dk) * TWO_PI
-        inside = (v >= lower - tol) & (v <= upper + tol)
-        v = np.clip(v, lower, upper)
-        d = np.abs(v - ref)
-        take = inside & (d < best_d)
-        best = np.where(take, v, best)
-        best_d = np.where(take, d, best_d)
-    return best
+@jit
+def family_fk(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) -> None:
+    """Tool point [m] by the family's formula (:mod:`robots.geometry`) into ``out`` (3,)."""
+    px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
+    p1 = q[J[1]]
+    p2 = p1 + q[J[2]]
+    u = px + l1 * math.cos(p1) + l2 * math.cos(p2) + ox
+    zz = pz + l1 * math.sin(p1) + l2 * math.sin(p2) + oz
+    if J[3] >= 0:
+        p3 = p2 + q[J[3]]
+        u += l3 * math.cos(p3)
+        zz += l3 * math.sin(p3)
+    c, s = math.cos(q[J[0]]), math.sin(q[J[0]])
+    out[0] = c * u - s * py
+    out[1] = s * u + c * py
+    out[2] = zz

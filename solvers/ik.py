@@ -36,75 +36,53 @@ from numpy.typing import NDArray
 
 from robots import BadRequest, Robot
 
-from .geometric import TWO_PI, FamilyParams, branches, branches_batch, wrap_into, wrap_into_batch
-from .pitch import boundary_configs
+from .analytic import EXACT, NONE, solve_one
+from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches
 from .qp import QPRefiner
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 PITCH_TOLERANCE = 1e-9  # [rad]
-_PITCH_GRID = np.linspace(-math.pi, math.pi, 361)  # 1-degree grid for the reachable-pitch search
-_BISECTIONS = 24
+FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference, in order
 _ATLAS_STARTS = 3
+
+
+class _Buffers(threading.local):
+    """Scratch arrays for the compiled stage, one set per thread."""
+
+    def __init__(self, n: int) -> None:
+        self.qs = np.empty((4, n))
+        self.ids = np.empty(4, dtype=np.int64)
+        self.errs = np.empty(4)
+        self.work = np.empty((4, 5))
 
 
 @dataclass
 class _Arm:
-    """Per-robot solver state, built once: family parameters, limits as floats, the QP."""
+    """Per-robot solver state, built once: the family's arrays, limits, the QP, QP starts."""
 
     robot: Robot
     fp: FamilyParams | None
     qp: QPRefiner
-    lower: list[float]
-    upper: list[float]
-    weights: list[float]
-    coupled: list[tuple[list[tuple[int, float]], float, float]]
+    lower: FloatArray
+    upper: FloatArray
+    weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
+    C: FloatArray  # coupled limits clo <= C q <= chi
+    clo: FloatArray
+    chi: FloatArray
     exact: bool  # [geometry] reproduces the URDF's FK to 1e-12 m: branch errors by formula
-    atlas_q: FloatArray  # in-limit configurations spread over the workspace (QP starts) [rad]
+    exact_pitch_search: bool  # no coupled limit touches a pitch joint: boundary pitches are exact
+    atlas_q: FloatArray  # in-limit configurations spread over joint space (closest-point starts) [rad]
     atlas_p: FloatArray  # their tool points [m]
-
-    def inside(self, q: list[float], tol: float = 0.0) -> bool:
-        """Every box limit holds to ``tol`` and every coupled limit exactly (plain floats: the hot path)."""
-        lower, upper = self.lower, self.upper
-        for i, v in enumerate(q):
-            if v < lower[i] - tol or v > upper[i] + tol:
-                return False
-        for terms, lo, hi in self.coupled:  # exact: a box slack is clamped away, a coupled one would not be
-            v = sum(c * q[i] for i, c in terms)
-            if v < lo or v > hi:
-                return False
-        return True
-
-    def distance(self, q: list[float], ref: list[float]) -> float:
-        """Joint distance weighted by 1 / vmax [s]: about the time to move from ``ref`` to ``q``."""
-        return sum(abs(a - b) * w for a, b, w in zip(q, ref, self.weights, strict=True))
+    buffers: _Buffers
 
 
 _cache: dict[int, _Arm] = {}
 _cache_lock = threading.Lock()
-
-
-def _arm(robot: Robot) -> _Arm:
-    arm = _cache.get(id(robot))
-    if arm is None or arm.robot is not robot:
-        with _cache_lock:
-            fp = FamilyParams.of(robot) if robot.geometry is not None else None
-            coupled = [([(i, float(c)) for i, c in enumerate(cl.coefficients) if c], cl.lower, cl.upper)
-                       for cl in robot.limits.coupled]
-            exact = False
-            if robot.geometry is not None:
-                rng = np.random.default_rng(0)
-                qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(64, robot.nq))
-                exact = max(float(np.max(np.abs(robot.geometry.fk(q) - robot.fk(q)))) for q in qs) < 1e-12
-            atlas_q = _atlas(robot)
-            atlas_p = np.array([robot.fk(q) for q in atlas_q])
-            arm = _Arm(robot, fp, QPRefiner(robot), robot.limits.lower.tolist(), robot.limits.upper.tolist(),
-                       (1.0 / robot.limits.velocity).tolist(), coupled, exact, atlas_q, atlas_p)
-            _cache[id(robot)] = arm
-    return arm
 
 
 def _atlas(robot: Robot, n: int = 4096) -> FloatArray:
@@ -112,6 +90,30 @@ def _atlas(robot: Robot, n: int = 4096) -> FloatArray:
     rng = np.random.default_rng(20261121)
     qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(4 * n, robot.nq))
     return qs[robot.limits.contains_batch(qs, tol=0.0)][:n]
+
+
+def _arm(robot: Robot) -> _Arm:
+    arm = _cache.get(id(robot))
+    if arm is not None and arm.robot is robot:
+        return arm
+    with _cache_lock:
+        lim = robot.limits
+        fp = FamilyParams.of(robot) if robot.geometry is not None else None
+        C = np.array([c.coefficients for c in lim.coupled]).reshape(len(lim.coupled), robot.nq)
+        exact = False
+        pitch_free = True
+        if robot.geometry is not None and fp is not None:
+            rng = np.random.default_rng(0)
+            qs = rng.uniform(lim.lower, lim.upper, size=(64, robot.nq))
+            exact = max(float(np.max(np.abs(robot.geometry.fk(q) - robot.fk(q)))) for q in qs) < 1e-12
+            pitch_joints = [int(j) for j in fp.J[1:] if j >= 0]
+            pitch_free = not np.any(C[:, pitch_joints]) if len(C) else True
+        atlas_q = _atlas(robot)
+        arm = _Arm(robot, fp, QPRefiner(robot), lim.lower.copy(), lim.upper.copy(), 1.0 / lim.velocity, C,
+                   np.array([c.lower for c in lim.coupled]), np.array([c.upper for c in lim.coupled]),
+                   exact, pitch_free, atlas_q, np.array([robot.fk(q) for q in atlas_q]), _Buffers(robot.nq))
+        _cache[id(robot)] = arm
+    return arm
 
 
 def solve_ik(
@@ -142,7 +144,9 @@ def solve_ik(
     ref = robot.neutral if seed is None else robot.joint_vector(seed, "seed")
     point = target_point(robot, target, ref)
     pitch = approach_pitch(robot, approach)
-    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+    if isinstance(tolerance, bool) or not (
+        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0
+    ):
         raise BadRequest(f"tolerance must be a positive number [m], got {tolerance!r}", field="tolerance")
     if arm.fp is None:
         result = _solve_numerical(arm, point, ref, tolerance)
@@ -161,215 +165,110 @@ def _dist(a: FloatArray, b: FloatArray) -> float:
     return math.dist(a.tolist(), b.tolist())
 
 
-def _configs(arm: _Arm, x: float, y: float, z: float, phi: float | None, ref: list[float],
-             tol: float = 0.0) -> list[tuple[str, list[float]]]:
-    """Closed-form branches wrapped into the box and within every limit, as plain lists."""
-    fp = arm.fp
-    assert fp is not None
-    lower, upper = arm.lower, arm.upper
-    idx = (fp.yaw, fp.shoulder, fp.elbow, fp.wrist)
-    out = []
-    for name, *values in branches(fp, x, y, z, phi):
-        q = list(ref)
-        for j, v in zip(idx, values, strict=True):
-            if j is None:
-                continue
-            w = wrap_into(v, lower[j], upper[j], ref[j], tol if tol else 1e-12)
-            if w is None:
-                break
-            q[j] = w
-        else:
-            if arm.inside(q, tol):
-                out.append((name, q))
-    return out
+def _result(arm: _Arm, status: str, chosen: Branch, others: list[Branch], point: FloatArray,
+            asked_pitch: float | None, iterations: int, reason: str | None) -> IKResult:
+    """The answer, with the tool point and pitch at ``chosen.q`` by Pinocchio FK (the check)."""
+    pose = arm.robot.pose(chosen.q)
+    pitch_error = None if asked_pitch is None else math.remainder(pose.pitch - asked_pitch, TWO_PI)
+    return IKResult(
+        status=status, q=chosen.q, position_error=_dist(pose.position, point), reached=pose.position,
+        target=point, pitch=pose.pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
+        iterations=iterations, reason=reason,
+    )
 
 
-def _verified(arm: _Arm, configs: list[tuple[str, list[float]]], point: FloatArray, phi: float | None,
-              ref: list[float], tolerance: float) -> tuple[list[Branch], int]:
-    """The configurations, nearest ``ref`` first, checked by FK on the exact model.
-
-    The chosen (first) one is always checked by Pinocchio FK; with an exact ``[geometry]`` the
-    others are checked by the family's formula, otherwise by Pinocchio too, and any that
-    misses is refined by the QP (inside the limits) or dropped.
-    """
-    robot = arm.robot
-    ranked = sorted(configs, key=lambda c: arm.distance(c[1], ref))
-    out: list[Branch] = []
+def _refined(arm: _Arm, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None,
+             tolerance: float) -> tuple[list[Branch], int]:
+    """Branches of an idealised ``[geometry]`` checked on the exact model and refined by the QP
+    (inside the limits) where they miss; those the QP cannot bring in are dropped."""
+    found: list[Branch] = []
     iterations = 0
-    for k, (name, ql) in enumerate(ranked):
-        q = np.array(ql)
-        if k > 0 and arm.exact:
-            assert robot.geometry is not None
-            err = _dist(robot.geometry.fk(q), point)
-        else:
-            err = _dist(robot.fk(q), point)
+    for name, q, _ in rows:
+        err = _dist(arm.robot.fk(q), point)
         if err > tolerance:
             refined = arm.qp.solve(point, q, pitch=phi)
             iterations += refined.iterations
             if refined.position_error > tolerance or refined.pitch_error > PITCH_TOLERANCE:
                 continue
             q, err = refined.q, refined.position_error
-        out.append(Branch(name, q, err))
-    return out, iterations
+        found.append(Branch(name, q, err))
+    return found, iterations
 
 
-def _result(arm: _Arm, status: str, chosen: Branch, others: list[Branch], point: FloatArray,
-            asked_pitch: float | None, iterations: int, reason: str | None) -> IKResult:
-    robot = arm.robot
-    pose = robot.pose(chosen.q)
-    pitch_error = None if asked_pitch is None else math.remainder(pose.pitch - asked_pitch, TWO_PI)
-    err = _dist(pose.position, point)
-    return IKResult(
-        status=status, q=chosen.q, position_error=err, reached=pose.position, target=point,
-        pitch=pose.pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
-        iterations=iterations, reason=reason,
-    )
-
-
-def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref_a: FloatArray,
+def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray,
                   tolerance: float) -> IKResult:
     fp = arm.fp
     assert fp is not None
-    ref = ref_a.tolist()
+    b = arm.buffers
+    prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     x, y, z = point.tolist()
+    code, m, phi = solve_one(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi,
+                             arm.exact_pitch_search, ref, x, y, z, prefs, b.qs, b.ids, b.errs, b.work)
+    if code == NONE:
+        return _closest(arm, point, pitch, ref, tolerance, 0)
+    rows = [(BRANCH_NAMES[int(b.ids[r])], b.qs[r].copy(), float(b.errs[r])) for r in range(m)]
     iterations = 0
-    if fp.wrist is None:
-        found, iterations = _verified(arm, _configs(arm, x, y, z, None, ref), point, None, ref, tolerance)
-        if found:
-            return _result(arm, OK, found[0], found[1:], point, None, iterations, None)
-        return _closest(arm, point, None, ref_a, tolerance, iterations)
-    preferred = [pitch] if pitch is not None else [PARALLEL, PERPENDICULAR]
-    for phi in preferred:
-        configs = _configs(arm, x, y, z, phi, ref)
-        if configs:
-            found, its = _verified(arm, configs, point, phi, ref, tolerance)
-            iterations += its
-            if found:
-                return _result(arm, OK, found[0], found[1:], point, pitch, iterations, None)
-    nearest = _nearest_reachable_pitch(arm, x, y, z, preferred, ref)
-    if nearest is not None:
-        configs = _configs(arm, x, y, z, nearest, ref, tol=1e-9)
-        found, its = _verified(arm, configs, point, nearest, ref, tolerance)
-        iterations += its
-        if found:
-            if pitch is None:
-                return _result(arm, OK, found[0], found[1:], point, None, iterations, None)
-            reason = (f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
-                      f"the nearest reachable pitch is {nearest:.4f} rad")
-            return _result(arm, APPROXIMATE, found[0], found[1:], point, pitch, iterations, reason)
-    return _closest(arm, point, pitch, ref_a, tolerance, iterations)
-
-
-def _pitch_distance(phi: float, preferred: list[float]) -> tuple[float, int]:
-    """(wrapped distance to the nearest preferred pitch, its rank): the search's sort key."""
-    return min((abs(math.remainder(phi - p, TWO_PI)), k) for k, p in enumerate(preferred))
-
-
-def _nearest_reachable_pitch(arm: _Arm, x: float, y: float, z: float, preferred: list[float],
-                             ref: list[float]) -> float | None:
-    """The reachable pitch [rad] nearest any preferred pitch (earlier preferred wins ties), or None.
-
-    Exact for arms whose coupled limits do not involve the pitch joints (every catalogue
-    arm): the answer is a boundary pitch of the reachable set (:mod:`solvers.pitch`).
-    Otherwise a 1-degree grid and bisection find it to ~1e-7 rad.
-    """
-    fp = arm.fp
-    assert fp is not None and fp.wrist is not None
-    pitch_joints = {fp.shoulder, fp.elbow, fp.wrist}
-    if not any(i in pitch_joints for terms, _, _ in arm.coupled for i, _ in terms):
-        cands = boundary_configs(fp, x, y, z, arm.lower, arm.upper, ref)
-        cands.sort(key=lambda c: _pitch_distance(c[0], preferred))
-        for phi, _name, q in cands:
-            if arm.inside(q, 1e-9):
-                return phi
-        return None
-    return _grid_pitch(arm, np.array([x, y, z]), preferred, np.array(ref))
-
-
-def _reachable_pitches(arm: _Arm, point: FloatArray, phis: FloatArray) -> NDArray[np.bool_]:
-    """For each pitch [rad], whether some branch reaches ``point`` within the limits (closed form)."""
-    fp = arm.fp
-    assert fp is not None and fp.wrist is not None
-    m = len(phis)
-    pts = np.broadcast_to(point, (m, 3))
-    feasible = np.zeros(m, dtype=bool)
-    lim = arm.robot.limits
-    idx = [fp.yaw, fp.shoulder, fp.elbow, fp.wrist]
-    for arr in branches_batch(fp, pts, phis).values():
-        q = np.broadcast_to(arm.robot.neutral, (m, fp.n)).copy()
-        for col, j in enumerate(idx):
-            q[:, j] = wrap_into_batch(arr[:, col], lim.lower[j], lim.upper[j], 0.0)
-        ok = ~np.any(np.isnan(q), axis=1)
-        ok[ok] = lim.contains_batch(q[ok], tol=0.0)
-        feasible |= ok
-    return feasible
-
-
-def _grid_pitch(arm: _Arm, point: FloatArray, preferred: list[float], ref: FloatArray) -> float | None:
-    feasible = _reachable_pitches(arm, point, _PITCH_GRID)
-    if not feasible.any():
-        return None
-    grid = _PITCH_GRID[feasible]
-    good = min(grid.tolist(), key=lambda g: _pitch_distance(g, preferred))
-    pref = preferred[_pitch_distance(good, preferred)[1]]
-    delta = math.remainder(pref - good, TWO_PI)
-    x, y, z = point.tolist()
-    refl = ref.tolist()
-    lo, hi = 0.0, 1.0
-    for _ in range(_BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        if _configs(arm, x, y, z, good + mid * delta, refl):
-            lo = mid
-        else:
-            hi = mid
-    return math.remainder(good + lo * delta, TWO_PI)
+    if arm.exact:  # the formula is the URDF's FK: no refinement; _result checks the chosen one by Pinocchio
+        found = [Branch(name, q, err) for name, q, err in rows]
+    else:
+        found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
+    if not found:
+        return _closest(arm, point, pitch, ref, tolerance, iterations)
+    if code == EXACT or pitch is None:
+        status, reason = OK, None
+    else:
+        status = APPROXIMATE
+        reason = (f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
+                  f"the nearest reachable pitch is {phi:.4f} rad")
+    result = _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
+    if result.position_error > tolerance and arm.exact:  # never "ok" off target: take the checked path
+        found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
+        if not found:
+            return _closest(arm, point, pitch, ref, tolerance, iterations)
+        result = _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
+    return result
 
 
 def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray) -> FloatArray | None:
-    """The arm pointed at ``point`` with the target pulled into its reach: a QP start."""
+    """The arm pointed at ``point``, with the target pulled into its reach: a closest-point QP start.
+
+    Without limits this is the closest configuration: a target beyond reach is best met by
+    the arm stretched toward it (with a free wrist, the hand continuing the same line).
+    """
     fp = arm.fp
     assert fp is not None
-    x, y, z = (float(v) for v in point)
-    h = math.sqrt(max(x * x + y * y - fp.py * fp.py, 0.0))
-    a = h - fp.px - fp.ox
-    b = z - fp.pz - fp.oz
-    reach_hi = fp.l1 + fp.l2 + (fp.l3 if pitch is None else 0.0)
-    reach_lo = abs(fp.l1 - fp.l2)
-    if fp.wrist is not None and pitch is not None:
-        a -= fp.l3 * math.cos(pitch)
-        b -= fp.l3 * math.sin(pitch)
-    d = math.hypot(a, b)
-    scale = min(max(d, reach_lo * 1.000001 + 1e-9), reach_hi * 0.999999) / max(d, 1e-300)
-    a, b = a * scale, b * scale
-    phi = pitch
-    if fp.wrist is not None and pitch is None:  # free pitch: the hand continues the line to the target
+    px, py, pz, l1, l2, l3, ox, oz = fp.P.tolist()
+    x, y, z = point.tolist()
+    h = math.sqrt(max(x * x + y * y - py * py, 0.0))
+    a, b = h - px - ox, z - pz - oz  # the target in the arm's plane, from the shoulder
+    lo = abs(l1 - l2) * 1.000001 + 1e-9
+    if fp.has_wrist and pitch is not None:  # the wrist must sit one hand back from the target
+        wa, wb = a - l3 * math.cos(pitch), b - l3 * math.sin(pitch)
+        d = math.hypot(wa, wb)
+        k = min(max(d, lo), (l1 + l2) * 0.999999) / max(d, 1e-300)
+        a, b = wa * k + l3 * math.cos(pitch), wb * k + l3 * math.sin(pitch)
+        phi = pitch
+    else:
+        d = math.hypot(a, b)
         phi = math.atan2(b, a)
-        dd = math.hypot(a, b)
-        inner = max(dd - fp.l3, reach_lo * 1.000001 + 1e-9)
-        a, b = a * inner / max(dd, 1e-300), b * inner / max(dd, 1e-300)
-        a += fp.l3 * math.cos(phi)
-        b += fp.l3 * math.sin(phi)
-    elif fp.wrist is not None and phi is not None:
-        a += fp.l3 * math.cos(phi)
-        b += fp.l3 * math.sin(phi)
-    u = a + fp.px + fp.ox
-    zz = b + fp.pz + fp.oz
-    bearing = math.atan2(y, x) if (x or y) else 0.0
-    # the pulled-in point, rebuilt in 3-D along the target's bearing
-    yaw = bearing - math.atan2(fp.py, u) if u else bearing
+        reach = l1 + l2 + (l3 if fp.has_wrist else 0.0)
+        k = min(max(d, lo + (l3 if fp.has_wrist else 0.0)), reach * 0.999999) / max(d, 1e-300)
+        a, b = a * k, b * k
+    u = a + px + ox
+    yaw = math.atan2(y, x) - math.atan2(py, u)
     c, s = math.cos(yaw), math.sin(yaw)
-    pulled = (c * u - s * fp.py, s * u + c * fp.py, zz)
-    cands = branches(fp, *pulled, phi)
-    if not cands:
-        return None
-    best = None
-    for _name, *values in cands:
+    work = np.empty((4, 5))
+    count = branches(fp.P, fp.has_wrist, c * u - s * py, s * u + c * py, b + pz + oz, phi, work)
+    best: tuple[float, FloatArray] | None = None
+    for r in range(count):
         q = ref.copy()
-        for j, v in zip((fp.yaw, fp.shoulder, fp.elbow, fp.wrist), values, strict=True):
-            if j is not None:
+        for col in range(4):
+            j = int(fp.J[col])
+            if j >= 0:
+                v = float(work[r, col + 1])
                 q[j] = v - TWO_PI * round((v - ref[j]) / TWO_PI)
         q = arm.qp.project(q)
-        dist = float(np.linalg.norm(arm.robot.fk(q) - point))
+        dist = _dist(arm.robot.fk(q), point)
         if best is None or dist < best[0]:
             best = (dist, q)
     return None if best is None else best[1]

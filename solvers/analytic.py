@@ -1,0 +1,85 @@
+"""The analytic stage of the IK for one target or many: the closed form with its pitch rule.
+
+``solve_one`` returns every branch within limits at the chosen pitch, nearest the seed
+first, with a code: ``EXACT`` (at the first preferred pitch that works, or any pitch on an
+arm without a wrist), ``NEAREST_PITCH`` (no preferred pitch works; at the reachable pitch
+nearest them), ``NONE`` (no branch within limits at any pitch: the QP takes over).
+``solve_many`` loops it over targets, compiled, for the batch IK.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .family import configs_at, formula_errors, rank_by_distance
+from .geometric import family_fk, jit
+from .pitch import BOUNDARY_TOL, boundary_pitch, grid_pitch
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+EXACT, NEAREST_PITCH, NONE = 0, 1, 2
+
+
+@jit
+def solve_one(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, weights: FloatArray,
+              C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, ref: FloatArray,
+              x: float, y: float, z: float, prefs: FloatArray,
+              qs: FloatArray, ids: IntArray, errs: FloatArray, work: FloatArray) -> tuple[int, int, float]:
+    """(code, number of branches in ``qs``/``ids``/``errs``, pitch [rad] used)."""
+    if J[3] < 0:
+        m = configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, 0.0, 0.0, qs, ids, work)
+        if m == 0:
+            return NONE, 0, 0.0
+        rank_by_distance(qs, ids, m, ref, weights)
+        formula_errors(P, J, qs, m, x, y, z, errs)
+        return EXACT, m, 0.0
+    for k in range(prefs.shape[0]):
+        m = configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, prefs[k], 0.0, qs, ids, work)
+        if m > 0:
+            rank_by_distance(qs, ids, m, ref, weights)
+            formula_errors(P, J, qs, m, x, y, z, errs)
+            return EXACT, m, prefs[k]
+    if exact_pitch_search:
+        found, phi = boundary_pitch(P, J, lower, upper, C, clo, chi, ref, x, y, z, prefs)
+    else:
+        found, phi = grid_pitch(P, J, lower, upper, C, clo, chi, ref, x, y, z, prefs)
+    if not found:
+        return NONE, 0, 0.0
+    m = configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, phi, BOUNDARY_TOL, qs, ids, work)
+    if m == 0:
+        return NONE, 0, 0.0
+    rank_by_distance(qs, ids, m, ref, weights)
+    formula_errors(P, J, qs, m, x, y, z, errs)
+    return NEAREST_PITCH, m, phi
+
+
+@jit
+def solve_many(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, weights: FloatArray,
+               C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, refs: FloatArray,
+               points: FloatArray, prefs: FloatArray, q_out: FloatArray, code_out: IntArray,
+               pitch_out: FloatArray, branch_out: IntArray, err_out: FloatArray, reached_out: FloatArray) -> None:
+    """:func:`solve_one` for each row of ``points`` (m, 3) with seed ``refs`` row (m, n): the
+    nearest branch into ``q_out``, its code, pitch, branch id, formula error and tool point."""
+    n = refs.shape[1]
+    qs = np.empty((4, n))
+    ids = np.empty(4, dtype=np.int64)
+    errs = np.empty(4)
+    work = np.empty((4, 5))
+    for i in range(points.shape[0]):
+        code, m, phi = solve_one(P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, refs[i],
+                                 points[i, 0], points[i, 1], points[i, 2], prefs, qs, ids, errs, work)
+        code_out[i] = code
+        pitch_out[i] = phi
+        if m > 0:
+            for c in range(n):
+                q_out[i, c] = qs[0, c]
+            branch_out[i] = ids[0]
+            err_out[i] = errs[0]
+            family_fk(P, J, qs[0], reached_out[i])
+        else:
+            for c in range(n):
+                q_out[i, c] = refs[i, c]
+            branch_out[i] = -1
+            err_out[i] = np.inf

@@ -1,0 +1,149 @@
+"""``solve_ik_batch``: many targets in one call, the closed-form stage compiled and looped.
+
+The statuses mean what they mean for :func:`solvers.solve_ik`. For an arm whose
+``[geometry]`` reproduces its URDF exactly (checked against Pinocchio when the solver first
+sees the arm; every catalogue arm), the answers are checked by the family's FK formula in
+the compiled loop; otherwise each answer is checked by Pinocchio FK and refined by the QP.
+Targets with no closed-form answer within limits (unreachable, or blocked by limits) take
+the single-target path: the closest configuration within limits, by the QP.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robots import BadRequest, Robot
+
+from .analytic import EXACT, NONE, solve_many
+from .geometric import BRANCH_NAMES
+from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, _arm, _closest, _solve_numerical, solve_ik
+from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
+from .target import approach_pitch
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class BatchIKResult:
+    """Answers for m targets, as arrays (row i answers target i).
+
+    Attributes:
+        status: (m,) ``"ok"``, ``"approximate"`` or ``"unreachable"``.
+        q: (m, n) joint vectors [rad], all within limits.
+        position_error: (m,) [m].
+        reached: (m, 3) tool points [m] at ``q``.
+        pitch: (m,) tool pitch [rad] at ``q``.
+        branch: (m,) branch names (``"numerical"`` where the QP answered).
+    """
+
+    status: NDArray[np.str_]
+    q: FloatArray
+    position_error: FloatArray
+    reached: FloatArray
+    pitch: FloatArray
+    branch: NDArray[np.str_]
+
+    def __len__(self) -> int:
+        return len(self.status)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "status": self.status.tolist(),
+            "q": self.q.tolist(),
+            "position_error": self.position_error.tolist(),
+            "reached": self.reached.tolist(),
+            "pitch": self.pitch.tolist(),
+            "branch": self.branch.tolist(),
+        }
+
+
+def _targets(targets: object) -> FloatArray:
+    try:
+        pts = np.asarray(targets, dtype=float)
+    except (TypeError, ValueError):
+        raise BadRequest("targets must be a list of [x, y, z] points in metres", field="targets") from None
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
+        raise BadRequest(f"targets must be a non-empty list of [x, y, z] points, got shape {list(pts.shape)}",
+                         field="targets")
+    if not np.all(np.isfinite(pts)):
+        bad = int(np.argmin(np.all(np.isfinite(pts), axis=1)))
+        raise BadRequest(f"targets[{bad}] is not finite: {pts[bad].tolist()}", field="targets", index=bad)
+    return np.ascontiguousarray(pts)
+
+
+def solve_ik_batch(
+    robot: Robot,
+    targets: object,
+    *,
+    approach: object = None,
+    seeds: Sequence[float] | FloatArray | None = None,
+    tolerance: float = DEFAULT_TOLERANCE,
+) -> BatchIKResult:
+    """IK for every row of ``targets`` (m, 3) [m]; ``seeds`` one joint vector for all, or (m, n).
+
+    Raises :class:`BadRequest` (and solves nothing) when any input is malformed.
+    """
+    arm = _arm(robot)
+    pts = _targets(targets)
+    m, n = len(pts), robot.nq
+    pitch = approach_pitch(robot, approach)
+    if seeds is None:
+        refs = np.broadcast_to(robot.neutral, (m, n))
+    else:
+        s = np.asarray(seeds, dtype=float) if not isinstance(seeds, str) else np.array([np.nan])
+        if s.shape == (n,):
+            refs = np.broadcast_to(robot.joint_vector(s, "seeds"), (m, n))
+        elif s.shape == (m, n) and np.all(np.isfinite(s)):
+            refs = s
+        else:
+            raise BadRequest(f"seeds must be one joint vector of {n} values or one per target ({m} x {n}), "
+                             f"got shape {list(s.shape)}", field="seeds")
+    refs = np.ascontiguousarray(refs)
+    if isinstance(tolerance, bool) or not (
+        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0
+    ):
+        raise BadRequest(f"tolerance must be a positive number [m], got {tolerance!r}", field="tolerance")
+
+    status = np.full(m, UNREACHABLE, dtype="<U11")
+    branch = np.full(m, "numerical", dtype="<U18")
+    q = np.empty((m, n))
+    err = np.empty(m)
+    reached = np.empty((m, 3))
+    pitch_out = np.empty(m)
+    if arm.fp is None:
+        for i in range(m):
+            _store(i, _solve_numerical(arm, pts[i], refs[i], tolerance), status, branch, q, err, reached, pitch_out)
+        return BatchIKResult(status, q, err, reached, pitch_out, branch)
+
+    fp = arm.fp
+    prefs = FREE_PITCHES if pitch is None else np.array([pitch])
+    codes = np.empty(m, dtype=np.int64)
+    ids = np.empty(m, dtype=np.int64)
+    solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
+               refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
+    solved = codes != NONE
+    good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
+    status[good] = np.where((codes[good] == EXACT) | (pitch is None), OK, APPROXIMATE)
+    branch[good] = np.array(BRANCH_NAMES)[ids[good]]
+    if robot.geometry is not None and robot.geometry.level:
+        pitch_out[good] = 0.0
+    else:  # the family's tool pitch: the sum of the pitch joints
+        pitch_sum = q[good][:, [int(j) for j in fp.J[1:] if j >= 0]].sum(axis=1)
+        pitch_out[good] = np.remainder(pitch_sum + math.pi, 2 * math.pi) - math.pi
+    for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
+        r = solve_ik(robot, pts[i], approach=approach, seed=refs[i], tolerance=tolerance) if solved[i] \
+            else _closest(arm, pts[i], pitch, refs[i], tolerance, 0)
+        _store(int(i), r, status, branch, q, err, reached, pitch_out)
+    return BatchIKResult(status, q, err, reached, pitch_out, branch)
+
+
+def _store(i: int, r: IKResult, status: NDArray[np.str_], branch: NDArray[np.str_], q: FloatArray,
+           err: FloatArray, reached: FloatArray, pitch: FloatArray) -> None:
+    status[i], branch[i], q[i], err[i], reached[i], pitch[i] = (
+        r.status, r.branch, r.q, r.position_error, r.reached, r.pitch)

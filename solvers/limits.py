@@ -1,0 +1,27 @@
+"""Joint limits as the compiled solvers check them: box (with a slack that the caller clamps
+away) and coupled rows ``clo <= C q <= chi`` (exactly: no slack)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .geometric import jit
+
+FloatArray = NDArray[np.float64]
+
+
+@jit
+def limits_ok(q: FloatArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray,
+              chi: FloatArray, tol: float) -> bool:
+    """Box limits hold to ``tol`` [rad] and every coupled limit holds exactly."""
+    for i in range(q.shape[0]):
+        if q[i] < lower[i] - tol or q[i] > upper[i] + tol:
+            return False
+    for r in range(C.shape[0]):
+        v = 0.0
+        for i in range(q.shape[0]):
+            v += C[r, i] * q[i]
+        if v < clo[r] or v > chi[r]:
+            return False
+    return True

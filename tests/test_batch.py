@@ -1,0 +1,65 @@
+"""solve_ik_batch: the same answers as solve_ik, for many targets at once."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import robots
+from solvers import solve_ik, solve_ik_batch
+from tests.test_fk import random_in_limits
+
+
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
+@pytest.mark.parametrize("approach", [None, "parallel"])
+def test_batch_equals_single(name: str, approach: str | None) -> None:
+    arm = robots.load(name)
+    if approach and not (arm.geometry and (arm.geometry.has_wrist or arm.geometry.level)):
+        pytest.skip("no approach on an arm without a wrist")
+    rng = np.random.default_rng(30)
+    reachable = np.array([arm.fk(q) for q in random_in_limits(arm, 400, seed=31)])
+    far = rng.normal(size=(20, 3))
+    far = far / np.linalg.norm(far, axis=1, keepdims=True) * 0.8
+    targets = np.vstack([reachable, far])
+    batch = solve_ik_batch(arm, targets, approach=approach)
+    assert len(batch) == len(targets)
+    for i, t in enumerate(targets):
+        single = solve_ik(arm, t, approach=approach)
+        assert batch.status[i] == single.status
+        assert batch.branch[i] == single.branch
+        assert np.allclose(batch.q[i], single.q, atol=1e-12), (i, batch.q[i], single.q)
+        assert math.isclose(batch.position_error[i], single.position_error, abs_tol=1e-12)
+        assert np.allclose(batch.reached[i], single.reached, atol=1e-12)
+        assert abs(math.remainder(batch.pitch[i] - single.pitch, 2 * math.pi)) < 1e-12
+        assert arm.limits.contains(batch.q[i], tol=0.0)
+    assert np.all(batch.status[-20:] == "unreachable")
+
+
+def test_batch_with_seeds() -> None:
+    arm = robots.load("gupta3")
+    qs = random_in_limits(arm, 200, seed=32)
+    targets = np.array([arm.fk(q) for q in qs])
+    r = solve_ik_batch(arm, targets, seeds=qs)
+    assert np.allclose(r.q, qs, atol=1e-9)  # each seed's own branch
+    one = solve_ik_batch(arm, targets, seeds=arm.neutral)
+    assert np.all(one.status == "ok")
+
+
+@pytest.mark.parametrize(
+    ("targets", "kwargs"),
+    [
+        ([], {}),
+        ([[0.1, 0.2]], {}),
+        ([[0.1, 0.2, float("nan")]], {}),
+        ("points", {}),
+        ([[0.1, 0.0, 0.1]], {"seeds": [0.0, 1.0]}),
+        ([[0.1, 0.0, 0.1], [0.2, 0.0, 0.1]], {"seeds": [[0.0, 1.0, -1.0]] * 3}),
+        ([[0.1, 0.0, 0.1]], {"approach": "parallel"}),
+        ([[0.1, 0.0, 0.1]], {"tolerance": 0.0}),
+    ],
+)
+def test_batch_bad_input(targets: object, kwargs: dict[str, object]) -> None:
+    with pytest.raises(robots.BadRequest):
+        solve_ik_batch(robots.load("gupta3"), targets, **kwargs)  # type: ignore[arg-type]
