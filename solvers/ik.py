@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from robots import BadRequest, Robot
 
 from .analytic import EXACT, NONE, solve_one
+from .closest import closest_family
 from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches
 from .qp import QPRefiner
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
@@ -49,6 +50,7 @@ DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this c
 PITCH_TOLERANCE = 1e-9  # [rad]
 FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference, in order
 _ATLAS_STARTS = 3
+_PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
 
 
 class _Buffers(threading.local):
@@ -277,6 +279,14 @@ def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: Flo
 def _closest(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float,
              iterations: int) -> IKResult:
     """The configuration within limits whose tool point is nearest ``point``."""
+    if arm.fp is not None and arm.exact:  # the family formula is the exact model: compiled
+        fp = arm.fp
+        q = np.empty(fp.n)
+        w2 = _PITCH_WEIGHT**2 if (pitch is not None and fp.has_wrist) else 0.0
+        err, perr, its = closest_family(fp.P, fp.J, arm.lower, arm.upper, arm.C, arm.clo, arm.chi, point,
+                                        0.0 if pitch is None else pitch, w2, ref, arm.atlas_q, arm.atlas_p,
+                                        _ATLAS_STARTS, q)
+        return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     starts = []
     if arm.fp is not None:
         s = _stretched_start(arm, point, pitch, ref)
@@ -295,13 +305,18 @@ def _closest(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray,
             best = refined
     assert best is not None
     chosen = Branch("numerical", best.q, best.position_error)
-    if best.position_error <= tolerance:
-        if pitch is not None and best.pitch_error > PITCH_TOLERANCE:
+    return _closest_result(arm, point, pitch, chosen, best.pitch_error, iterations, tolerance)
+
+
+def _closest_result(arm: _Arm, point: FloatArray, pitch: float | None, chosen: Branch, pitch_error: float,
+                    iterations: int, tolerance: float) -> IKResult:
+    if chosen.position_error <= tolerance:
+        if pitch is not None and pitch_error > PITCH_TOLERANCE:
             return _result(arm, APPROXIMATE, chosen, [], point, pitch, iterations,
                            "the asked pitch is not reachable at this target within the joint limits")
         return _result(arm, OK, chosen, [], point, pitch, iterations, None)
     reason = (f"the target is out of reach within the joint limits: the closest the tool gets is "
-              f"{best.position_error:.6g} m away")
+              f"{chosen.position_error:.6g} m away")
     return _result(arm, UNREACHABLE, chosen, [], point, pitch, iterations, reason)
 
 
