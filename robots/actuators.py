@@ -21,7 +21,7 @@ from .errors import ActuatorMapError, ActuatorRangeError, BadRequest
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-_TOL = 1e-9
+_TOL = 1e-7  # [rad] numerical slack on actuator angle ranges (a servo pulse step is ~1.6e-3 rad)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,81 @@
+"""The safety gate: every sample of a trajectory against every limit, before it leaves the planner.
+
+Position (box and coupled), velocity, acceleration and jerk limits of ``robot.toml`` and the
+URDF, and every actuator's range. Ruckig Community does not enforce position limits, and a
+Cartesian line's joint motion comes from IK, so this check is what guarantees them. A
+violation raises the :class:`~robots.errors.LimitError` that names the joint (or coupled
+limit, or actuator), the time [s] and the value; nothing is clipped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robots import ActuatorRangeError, CoupledLimitError, JointLimitError, LimitError, Robot
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+POSITION_TOL = 1e-7  # [rad]: numerical noise (Ruckig lands on a target to ~1e-8); far below any actuator step
+RATE_TOL = 1e-6  # relative slack on velocity, acceleration and jerk limits (rounding)
+
+
+def _first(bad: NDArray[np.bool_]) -> tuple[int, int]:
+    k, j = np.argwhere(bad)[0]
+    return int(k), int(j)
+
+
+def check_samples(robot: Robot, times: FloatArray, position: FloatArray, velocity: FloatArray,
+                  acceleration: FloatArray, jerk: FloatArray) -> None:
+    """Raise the first limit any sample breaks (rows are samples at ``times`` [s])."""
+    lim = robot.limits
+    names = robot.joint_names
+    bad = (position < lim.lower - POSITION_TOL) | (position > lim.upper + POSITION_TOL)
+    if bad.any():
+        k, j = _first(bad)
+        err = JointLimitError(names[j], float(position[k, j]), (float(lim.lower[j]), float(lim.upper[j])))
+        raise _at(err, times[k])
+    for c in lim.coupled:
+        v = position @ c.coefficients
+        over = (v < c.lower - POSITION_TOL) | (v > c.upper + POSITION_TOL)
+        if over.any():
+            k = int(np.argmax(over))
+            raise _at(CoupledLimitError(c.name, float(v[k]), (c.lower, c.upper)), times[k])
+    for values, limit, kind, unit in ((velocity, lim.velocity, "velocity", "rad/s"),
+                                      (acceleration, lim.acceleration, "acceleration", "rad/s^2"),
+                                      (jerk, lim.jerk, "jerk", "rad/s^3")):
+        over = np.abs(values) > limit * (1 + RATE_TOL) + 1e-12
+        if over.any():
+            k, j = _first(over)
+            raise LimitError(
+                f"joint {names[j]!r} {kind} {values[k, j]:.6g} {unit} at t = {times[k]:.4f} s exceeds its "
+                f"limit {limit[j]:.6g} {unit}",
+                name=names[j], value=float(values[k, j]), bounds=(-float(limit[j]), float(limit[j])), kind=kind,
+                time=float(times[k]),
+            )
+
+
+def actuator_commands(robot: Robot, times: FloatArray, position: FloatArray) -> IntArray:
+    """Every sample's actuator commands (pulses [us] or micro-steps); an actuator leaving its
+    range raises :class:`ActuatorRangeError` with the time."""
+    try:
+        return robot.actuators.commands(position)
+    except ActuatorRangeError as e:
+        amap = robot.actuators
+        a = amap.angles(position)
+        k = 0
+        for j, act in enumerate(amap.actuators):
+            if act.name == e.name:
+                lo, hi = act.angle_range
+                out = (a[:, j] < lo - 1e-9) | (a[:, j] > hi + 1e-9)
+                k = int(np.argmax(out)) if out.any() else 0
+        raise _at(e, times[k]) from None
+
+
+def _at(err: LimitError, t: float) -> LimitError:
+    err.time = float(t)
+    err.fields["time"] = float(t)
+    err.message = f"{err.message} at t = {t:.4f} s"
+    err.args = (err.message,)
+    return err

@@ -1,0 +1,69 @@
+"""Plan goals: a joint configuration, or a Cartesian target with an approach (solved by IK)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robots import BadRequest, Robot
+from solvers import SensorReading, approach_pitch, solve_ik, target_point
+
+from .errors import PlanRejected
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class CartesianGoal:
+    """A tool point [x, y, z] [m] in ``base`` (or a sensor reading) and an approach."""
+
+    target: object
+    approach: object = None
+
+
+def cartesian(goal: object) -> CartesianGoal | None:
+    """The goal as a :class:`CartesianGoal`, or None when it is a joint configuration."""
+    if isinstance(goal, CartesianGoal):
+        return goal
+    if isinstance(goal, SensorReading):
+        return CartesianGoal(goal)
+    if isinstance(goal, Mapping):
+        if "target" in goal:
+            return CartesianGoal(goal["target"], goal.get("approach"))
+        if "q" in goal:
+            return None
+        raise BadRequest("a goal mapping needs 'target' (Cartesian) or 'q' (joints)", field="goal")
+    return None
+
+
+def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str = "goal") -> FloatArray:
+    """The joint configuration [rad] a goal names: IK (seeded with ``seed``) for a Cartesian goal.
+
+    An unreachable target is :class:`PlanRejected`; a pitch that is not reachable there
+    (IK ``approximate``) is too: a plan never silently changes the approach it was given.
+    """
+    cg = cartesian(goal)
+    if cg is None:
+        q = goal["q"] if isinstance(goal, Mapping) else goal
+        qv = robot.joint_vector(q, field)
+        bad = robot.limits.violations(qv, tol=1e-9)
+        if bad:
+            raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=field)
+        return np.clip(qv, robot.limits.lower, robot.limits.upper)
+    r = solve_ik(robot, cg.target, approach=cg.approach, seed=seed)
+    if r.status != "ok":
+        raise PlanRejected(f"{field}: {r.reason}", field=field, position_error=r.position_error)
+    return r.q
+
+
+def goal_point(robot: Robot, goal: object, seed: FloatArray) -> tuple[FloatArray, float | None]:
+    """Tool point [m] and asked pitch [rad] (None: free) of a goal, for a Cartesian line."""
+    cg = cartesian(goal)
+    if cg is None:
+        q = goal_configuration(robot, goal, seed)
+        g = robot.geometry
+        return robot.fk(q), (robot.tool_pitch(q) if g is not None and g.has_wrist else None)
+    return target_point(robot, cg.target, seed), approach_pitch(robot, cg.approach)

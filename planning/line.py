@@ -1,0 +1,169 @@
+"""Straight Cartesian lines: the tool point moves on the segment from start to goal.
+
+1. The geometric path: IK on a grid along the segment (every ``GRID_STEP`` m), each seeded
+   by the previous answer, with the tool pitch interpolated from the start's to the goal's
+   (wrist arms). A grid point the IK cannot reach exactly, or a jump in joint space (a
+   branch flip: elbow up to down, the yaw swinging round), rejects the line with the reason
+   and where it happens.
+2. The timing: a jerk-limited profile of the path parameter s (Ruckig, one degree of
+   freedom, from rest to rest), its velocity, acceleration and jerk limits derived from the
+   joints' limits and the path's joint-space derivatives, scaled by ``speed``.
+3. The samples: IK at each control cycle's s (on the line to the IK's 1e-9 m), joint
+   velocity, acceleration and jerk by finite differences. If any exceeds a limit, the whole
+   profile is slowed (time scaling) and sampled again.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import ruckig
+from numpy.typing import NDArray
+
+from robots import Robot
+from solvers import solve_ik
+
+from .errors import PlanRejected
+from .ruckig_path import whole_cycles
+from .state import JointState
+from .trajectory import Evaluator, forward_jerk
+
+FloatArray = NDArray[np.float64]
+
+GRID_STEP = 0.005  # [m] spacing of the geometric pass
+MAX_JUMP = 0.25  # [rad] a joint moving more than this between grid points: a branch flip
+SLOWDOWNS = 16  # how many times the timing may be slowed by SLOWDOWN before giving up
+SLOWDOWN = 0.8
+
+
+class LinePath:
+    """The line's geometry: endpoints, pitch interpolation, and IK at any path parameter."""
+
+    def __init__(self, robot: Robot, start: JointState, goal: FloatArray, goal_pitch: float | None) -> None:
+        self.robot = robot
+        self.q0 = start.position
+        self.p0 = robot.fk(self.q0)
+        self.p1 = np.asarray(goal, dtype=float)
+        self.length = float(np.linalg.norm(self.p1 - self.p0))
+        g = robot.geometry
+        self.has_pitch = g is not None and g.has_wrist
+        self.pitch0 = robot.tool_pitch(self.q0) if self.has_pitch else 0.0
+        asked = self.pitch0 if goal_pitch is None else goal_pitch
+        self.dpitch = math.remainder(asked - self.pitch0, 2 * math.pi) if self.has_pitch else 0.0
+
+    def point(self, s: float) -> FloatArray:
+        f = 0.0 if self.length == 0 else s / self.length
+        return self.p0 + f * (self.p1 - self.p0)
+
+    def pitch(self, s: float) -> float | None:
+        if not self.has_pitch:
+            return None
+        f = 0.0 if self.length == 0 else s / self.length
+        return math.remainder(self.pitch0 + f * self.dpitch, 2 * math.pi)
+
+    def ik(self, s: float, seed: FloatArray) -> FloatArray:
+        r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed)
+        if r.status != "ok":
+            raise PlanRejected(
+                f"the line leaves the reachable space {s:.4f} m from the start at {self.point(s).round(4).tolist()}: "
+                f"{r.reason}", s=s, point=self.point(s).tolist())
+        return r.q
+
+
+def _grid(line: LinePath) -> tuple[FloatArray, FloatArray]:
+    n = max(2, math.ceil(line.length / GRID_STEP) + 1)
+    ss = np.linspace(0.0, line.length, n)
+    qs = np.empty((n, line.robot.nq))
+    qs[0] = line.q0
+    for k in range(1, n):
+        qs[k] = line.ik(float(ss[k]), qs[k - 1])
+        jump = np.abs(qs[k] - qs[k - 1])
+        if float(np.max(jump)) > MAX_JUMP:
+            j = int(np.argmax(jump))
+            raise PlanRejected(
+                f"the line needs a branch flip {ss[k]:.4f} m from the start: joint "
+                f"{line.robot.joint_names[j]!r} would jump {jump[j]:.3f} rad (elbow or yaw turning over)",
+                s=float(ss[k]), joint=line.robot.joint_names[j])
+    return ss, qs
+
+
+def _path_limits(robot: Robot, ss: FloatArray, qs: FloatArray, speed: float) -> tuple[float, float, float]:
+    """Velocity [m/s], acceleration [m/s^2] and jerk [m/s^3] limits of s that keep each joint
+    within its limits, from the path derivatives dq/ds, d2q/ds2 on the grid."""
+    lim = robot.limits
+    if len(ss) < 3:
+        return 1.0, 1.0, 1.0
+    d1 = np.abs(np.gradient(qs, ss, axis=0)).max(axis=0) + 1e-9
+    d2 = np.abs(np.gradient(np.gradient(qs, ss, axis=0), ss, axis=0)).max(axis=0) + 1e-9
+    v = float(np.min(lim.velocity / d1))
+    v = min(v, float(np.min(np.sqrt(0.5 * lim.acceleration / d2))))
+    a = float(np.min(0.5 * lim.acceleration / d1))
+    j = float(np.min(0.3 * lim.jerk / d1))
+    return v * speed, a * speed**2, j * speed**3
+
+
+def _profile(length: float, v: float, a: float, j: float, dt: float) -> ruckig.Trajectory:
+    otg = ruckig.Ruckig(1, dt)
+    inp = ruckig.InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [length], [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [v], [a], [j]
+    inp.duration_discretization = ruckig.DurationDiscretization.Discrete
+    traj = ruckig.Trajectory(1)
+    otg.calculate(inp, traj)
+    return traj
+
+
+def _derivatives(P: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Velocity and acceleration by central differences, the arm at rest before and after."""
+    padded = np.vstack([P[:1], P, P[-1:]])
+    V = (padded[2:] - padded[:-2]) / (2 * dt)
+    A = (padded[2:] - 2 * padded[1:-1] + padded[:-2]) / (dt * dt)
+    return V, A
+
+
+def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: float | None, speed: float,
+                 rate_hz: float) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
+    """(duration, times, position, velocity, acceleration, evaluator) of the line."""
+    if start.moving:
+        raise PlanRejected("a line starts with the arm at rest: stop first, or plan a joint path", field="start")
+    line = LinePath(robot, start, goal, goal_pitch)
+    dt = 1.0 / rate_hz
+    ss, qs = _grid(line)
+    v, a, j = _path_limits(robot, ss, qs, speed)
+    lim = robot.limits
+    for _ in range(SLOWDOWNS):
+        prof = _profile(line.length, v, a, j, dt)
+        k = whole_cycles(prof.duration, dt)
+        times = np.arange(k + 1, dtype=float) * dt
+        P = np.empty((k + 1, robot.nq))
+        seed = line.q0
+        svals = np.empty(k + 1)
+        for i, t in enumerate(times.tolist()):
+            s = prof.at_time(min(t, prof.duration))[0][0]
+            svals[i] = s
+            P[i] = line.q0 if i == 0 else line.ik(s, seed)
+            seed = P[i]
+        V, A = _derivatives(P, dt)
+        J = forward_jerk(A, dt)
+        if (np.all(np.abs(V) <= lim.velocity) and np.all(np.abs(A) <= lim.acceleration)
+                and np.all(np.abs(J) <= lim.jerk)):
+            break
+        v, a, j = v * SLOWDOWN, a * SLOWDOWN**2, j * SLOWDOWN**3
+    else:
+        raise PlanRejected("the line cannot be timed within the joint limits (too close to a singularity)")
+
+    duration = float(times[-1])
+
+    def evaluate(t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        s = prof.at_time(min(max(t, 0.0), prof.duration))[0][0]
+        i = min(round(t / dt), k)
+        q = line.ik(s, P[i])
+        f = min(max(t / dt, 0.0), float(k))
+        lo = min(int(f), k - 1) if k > 0 else 0
+        w = f - lo
+        hi = min(lo + 1, k)
+        return q, (1 - w) * V[lo] + w * V[hi], (1 - w) * A[lo] + w * A[hi]
+
+    return duration, times, P, V, A, evaluate

@@ -1,0 +1,104 @@
+"""``plan`` and ``plan_stop``: the planning layer's entry points."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from robots import BadRequest, Robot
+
+from .goal import goal_configuration, goal_point
+from .line import line_samples
+from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles
+from .state import JointState, joint_state
+from .trajectory import Trajectory, build
+
+DEFAULT_RATE_HZ = 50.0
+PATHS = ("joint", "line")
+
+
+def _rate(robot: Robot, rate_hz: object) -> float:
+    rate = robot.controller.get("rate_hz", DEFAULT_RATE_HZ) if rate_hz is None else rate_hz
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not math.isfinite(rate) or not 1 <= rate <= 1000:
+        raise BadRequest(f"rate_hz must be a number in [1, 1000] Hz, got {rate!r}", field="rate_hz")
+    return float(rate)
+
+
+def _speed(speed: object) -> float:
+    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not math.isfinite(speed) \
+            or not 0 < speed <= 1:
+        raise BadRequest(f"speed must be a number in (0, 1], got {speed!r}", field="speed")
+    return float(speed)
+
+
+def plan(
+    robot: Robot,
+    start: object,
+    goal: object,
+    *,
+    path: str = "joint",
+    speed: float = 1.0,
+    rate_hz: float | None = None,
+    via: Sequence[object] = (),
+) -> Trajectory:
+    """A jerk-limited trajectory from ``start`` to ``goal``, checked against every limit.
+
+    Args:
+        robot: an arm from :func:`robots.load`.
+        start: the current state: a joint vector [rad], or a :class:`JointState` / mapping
+            with ``position`` and optional ``velocity``, ``acceleration`` (the arm may move).
+        goal: a joint vector [rad], or a Cartesian goal: ``{"target": [x, y, z], "approach": ...}``
+            or :class:`~planning.goal.CartesianGoal` (solved by IK, seeded with the start).
+        path: ``"joint"`` (time-synchronised in joint space) or ``"line"`` (the tool on the
+            straight segment to the goal).
+        speed: fraction (0, 1] of the velocity limits (acceleration and jerk scaled to match).
+        rate_hz: samples per second (the adapter's control rate); default from the arm's
+            ``[controller] rate_hz``, else 50.
+        via: waypoints (same forms as ``goal``) passed through in order, without stopping
+            where possible (joint paths only).
+
+    Raises:
+        BadRequest: malformed input. PlanRejected: a goal out of reach, a line that leaves the
+        reachable space or needs a branch flip. LimitError: a sample would break a limit.
+    """
+    rate = _rate(robot, rate_hz)
+    spd = _speed(speed)
+    if path not in PATHS:
+        raise BadRequest(f"path must be one of {', '.join(PATHS)}, got {path!r}", field="path")
+    s = joint_state(robot, start)
+    if path == "line":
+        if via:
+            raise BadRequest("a line goes straight to its goal: via points are for joint paths", field="via")
+        point, pitch = goal_point(robot, goal, s.position)
+        duration, times, P, V, A, evaluate = line_samples(robot, s, point, pitch, spd, rate)
+        return build(robot, "line", rate, duration, times, P, V, A, evaluate)
+    if isinstance(via, (str, bytes)) or not isinstance(via, Sequence):
+        raise BadRequest("via must be a list of goals", field="via")
+    goals = []
+    seed = s.position
+    for k, g in enumerate([*via, goal]):
+        q = goal_configuration(robot, g, seed, field="goal" if k == len(via) else f"via[{k}]")
+        goals.append(q)
+        seed = q
+    rpath = joint_path(robot, s, goals, spd, 1.0 / rate)
+    return _sampled(robot, "joint", rate, rpath)
+
+
+def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None) -> Trajectory:
+    """From ``state`` (possibly moving) to rest, jerk-limited, as fast as the limits allow."""
+    rate = _rate(robot, rate_hz)
+    s = joint_state(robot, state, "state")
+    return _sampled(robot, "stop", rate, stop_path(robot, s, 1.0 / rate))
+
+
+def _sampled(robot: Robot, kind: str, rate: float, rpath: RuckigPath) -> Trajectory:
+    dt = 1.0 / rate
+    k = whole_cycles(rpath.duration, dt)
+    times = np.arange(k + 1, dtype=float) * dt
+    P, V, A = rpath.sample(times)
+    return build(robot, kind, rate, float(times[-1]), times, P, V, A, rpath.at)
+
+
+__all__ = ["JointState", "plan", "plan_stop"]

@@ -1,0 +1,195 @@
+"""Joint-space motion with Ruckig: point to point, waypoint chains, and stops.
+
+Ruckig Community computes one time-optimal, jerk-limited segment from any state (the arm
+may be moving) to a target state. Its intermediate waypoints call a cloud service (Pro),
+so armd chains segments itself: each waypoint becomes a segment target with a pass-through
+velocity chosen so the arm does not stop where it need not (same direction of travel on
+both sides), and with zero velocity where it must (direction changes, or the pass-through
+would overshoot a position limit). Segment durations are whole control cycles
+(``DurationDiscretization.Discrete``), so a trajectory ends on a sample.
+
+Rest-to-rest segments use phase synchronisation: all joints move on the straight line in
+joint space between start and goal, which keeps linear (coupled) limits that hold at both
+ends satisfied everywhere between them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import ruckig
+from numpy.typing import NDArray
+
+from robots import ArmdError, Robot
+
+from .state import JointState
+
+FloatArray = NDArray[np.float64]
+
+
+class PlannerError(ArmdError):
+    """Ruckig could not compute a segment (reported as ``internal``: a bug or a corner case)."""
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Kinematic limits for Ruckig, scaled by ``speed`` in (0, 1] (time scaling: v*s, a*s^2, j*s^3)."""
+
+    velocity: FloatArray
+    acceleration: FloatArray
+    jerk: FloatArray
+
+    @classmethod
+    def of(cls, robot: Robot, speed: float) -> Limits:
+        lim = robot.limits
+        return cls(lim.velocity * speed, lim.acceleration * speed**2, lim.jerk * speed**3)
+
+
+class RuckigPath:
+    """A chain of Ruckig segments, evaluated at any time [s] from the start."""
+
+    def __init__(self, segments: Sequence[ruckig.Trajectory], nq: int) -> None:
+        self.segments = list(segments)
+        self.nq = nq
+        self.starts = np.cumsum([0.0] + [s.duration for s in self.segments[:-1]])
+        self.duration = float(sum(s.duration for s in self.segments))
+
+    def at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position [rad], velocity [rad/s], acceleration [rad/s^2] at time ``t`` (clamped to the path)."""
+        t = min(max(t, 0.0), self.duration)
+        k = int(np.searchsorted(self.starts, t, side="right")) - 1
+        k = min(max(k, 0), len(self.segments) - 1)
+        p, v, a = self.segments[k].at_time(t - self.starts[k])
+        return np.array(p), np.array(v), np.array(a)
+
+    def sample(self, times: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        n = len(times)
+        P, V, A = np.empty((n, self.nq)), np.empty((n, self.nq)), np.empty((n, self.nq))
+        k = 0
+        last = len(self.segments) - 1
+        for i, t in enumerate(times.tolist()):
+            t = min(max(t, 0.0), self.duration)
+            while k < last and t > self.starts[k + 1]:
+                k += 1
+            P[i], V[i], A[i] = self.segments[k].at_time(t - self.starts[k])
+        return P, V, A
+
+
+def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_velocity: FloatArray,
+             limits: Limits, interface_velocity: bool = False, synchronise: bool = True) -> ruckig.Trajectory:
+    n = len(goal)
+    inp = ruckig.InputParameter(n)
+    inp.current_position = start.position.tolist()
+    inp.current_velocity = start.velocity.tolist()
+    inp.current_acceleration = start.acceleration.tolist()
+    inp.max_velocity = limits.velocity.tolist()
+    inp.max_acceleration = limits.acceleration.tolist()
+    inp.max_jerk = limits.jerk.tolist()
+    inp.duration_discretization = ruckig.DurationDiscretization.Discrete
+    if interface_velocity:  # a stop: every joint brakes as hard as it may, not waiting for the others
+        inp.control_interface = ruckig.ControlInterface.Velocity
+        inp.synchronization = ruckig.Synchronization.No
+        inp.target_velocity = [0.0] * n
+        inp.target_acceleration = [0.0] * n
+    else:
+        inp.target_position = goal.tolist()
+        inp.target_velocity = goal_velocity.tolist()
+        inp.target_acceleration = [0.0] * n
+        at_rest = not start.moving and not np.any(goal_velocity)
+        if not synchronise:
+            inp.synchronization = ruckig.Synchronization.No
+        else:
+            inp.synchronization = ruckig.Synchronization.Phase if at_rest else ruckig.Synchronization.Time
+    traj = ruckig.Trajectory(n)
+    try:
+        result = otg.calculate(inp, traj)
+    except RuntimeError as e:  # Ruckig raises on input it cannot handle
+        raise PlannerError(f"Ruckig rejected the segment: {e}") from None
+    if result not in (ruckig.Result.Working, ruckig.Result.Finished):
+        raise PlannerError(f"Ruckig could not compute the segment: {result}")
+    return traj
+
+
+def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
+    """The segment's position extrema stay inside the box limits, and its samples inside the
+    coupled limits."""
+    lim = robot.limits
+    if not all(lim.lower[i] - 1e-9 <= e.min and e.max <= lim.upper[i] + 1e-9
+               for i, e in enumerate(traj.position_extrema)):
+        return False
+    if lim.coupled:
+        for t in np.arange(0.0, traj.duration + dt / 2, dt).tolist():
+            if not lim.contains(np.array(traj.at_time(min(t, traj.duration))[0]), tol=1e-9):
+                return False
+    return True
+
+
+def _pass_velocity(prev: FloatArray, via: FloatArray, nxt: FloatArray, limits: Limits) -> FloatArray:
+    """Pass-through velocity at ``via`` [rad/s]: zero where the joint turns back or rests,
+    otherwise the smaller of the two neighbouring segments' rough mean speeds (each segment
+    timed by its slowest joint), capped at half the velocity limit."""
+    d1, d2 = via - prev, nxt - via
+    t1 = float(np.max(np.abs(d1) / limits.velocity)) or 1.0
+    t2 = float(np.max(np.abs(d2) / limits.velocity)) or 1.0
+    same = (np.sign(d1) == np.sign(d2)) & (d1 != 0) & (d2 != 0)
+    speed = np.minimum(np.abs(d1) / t1, np.abs(d2) / t2)
+    return np.where(same, np.sign(d2) * np.minimum(speed, 0.5 * limits.velocity), 0.0)
+
+
+def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float,
+               dt: float) -> RuckigPath:
+    """Through every goal in order, ending at rest on the last; waypoints passed without
+    stopping where that is possible."""
+    limits = Limits.of(robot, speed)
+    otg = ruckig.Ruckig(robot.nq, dt)
+    segments: list[ruckig.Trajectory] = []
+    state = start
+    prev = start.position
+    if start.moving:  # from a moving state: straight on if that stays inside the limits
+        first_v = np.zeros(robot.nq) if len(goals) == 1 else _pass_velocity(prev, goals[0], goals[1], limits)
+        direct = _segment(otg, start, goals[0], first_v, limits)
+        if not _within(direct, robot, dt):  # else brake to rest first, then go (never through a limit)
+            brake = _brake(otg, robot, start, dt)
+            segments.append(brake)
+            p, _, _ = brake.at_time(brake.duration)
+            state = JointState.at_rest(np.array(p))
+            prev = state.position
+    for k, goal in enumerate(goals):
+        last = k == len(goals) - 1
+        v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
+        traj = _segment(otg, state, goal, v, limits)
+        if np.any(v) and not _within(traj, robot, dt):  # passing through would overshoot: stop there
+            v = np.zeros(robot.nq)
+            traj = _segment(otg, state, goal, v, limits)
+        segments.append(traj)
+        p, vel, acc = traj.at_time(traj.duration)
+        state = JointState(np.array(p), np.array(vel), np.array(acc))
+        prev = goal
+    return RuckigPath(segments, robot.nq)
+
+
+def _brake(otg: ruckig.Ruckig, robot: Robot, start: JointState, dt: float) -> ruckig.Trajectory:
+    """To rest, each joint as fast as its (full) limits allow. The fastest stop is not always
+    the shortest: where it would cross a position limit, stop instead at the nearest point
+    inside the limits, still unsynchronised."""
+    limits = Limits.of(robot, 1.0)
+    zero = np.zeros(robot.nq)
+    traj = _segment(otg, start, start.position, zero, limits, interface_velocity=True)
+    if _within(traj, robot, dt):
+        return traj
+    end = np.clip(np.array(traj.at_time(traj.duration)[0]), robot.limits.lower, robot.limits.upper)
+    held = _segment(otg, start, end, zero, limits, synchronise=False)
+    return held if _within(held, robot, dt) else traj  # (the safety gate reports the latter)
+
+
+def stop_path(robot: Robot, start: JointState, dt: float) -> RuckigPath:
+    """From ``start`` to rest as fast as the (full) limits allow, jerk-limited."""
+    return RuckigPath([_brake(ruckig.Ruckig(robot.nq, dt), robot, start, dt)], robot.nq)
+
+
+def whole_cycles(duration: float, dt: float) -> int:
+    """Number of control cycles covering ``duration`` [s] (rounded up, robust to rounding)."""
+    return max(0, math.ceil(duration / dt - 1e-9))

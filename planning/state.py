@@ -1,0 +1,70 @@
+"""Joint states: where a plan starts (the arm may be moving) and what a trajectory gives at a time."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robots import BadRequest, Robot
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class JointState:
+    """Joint positions [rad], velocities [rad/s] and accelerations [rad/s^2]."""
+
+    position: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+
+    @classmethod
+    def at_rest(cls, position: FloatArray) -> JointState:
+        z = np.zeros_like(position)
+        return cls(np.asarray(position, dtype=float), z, z.copy())
+
+    @property
+    def moving(self) -> bool:
+        return bool(np.any(np.abs(self.velocity) > 1e-9) or np.any(np.abs(self.acceleration) > 1e-9))
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"position": self.position.tolist(), "velocity": self.velocity.tolist(),
+                "acceleration": self.acceleration.tolist()}
+
+
+def joint_state(robot: Robot, start: object, field: str = "start") -> JointState:
+    """A :class:`JointState` from a JointState, a position vector, or a mapping with
+    ``position`` and optional ``velocity``/``acceleration``. The position must be within every
+    joint limit (a plan never starts from outside them); :class:`BadRequest` otherwise."""
+    pos: object
+    vel: object
+    acc: object
+    if isinstance(start, JointState):
+        pos, vel, acc = start.position, start.velocity, start.acceleration
+    elif isinstance(start, Mapping):
+        if "position" not in start:
+            raise BadRequest(f"{field} needs a 'position'", field=field)
+        pos = start["position"]
+        vel = start.get("velocity")
+        acc = start.get("acceleration")
+    else:
+        pos, vel, acc = start, None, None
+    p = robot.joint_vector(pos, f"{field}.position")
+    v = np.zeros(robot.nq) if vel is None else robot.joint_vector(vel, f"{field}.velocity")
+    a = np.zeros(robot.nq) if acc is None else robot.joint_vector(acc, f"{field}.acceleration")
+    bad = robot.limits.violations(p, tol=1e-9)
+    if bad:
+        raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=f"{field}.position")
+    lim = robot.limits
+    for i, name in enumerate(robot.joint_names):
+        if abs(v[i]) > lim.velocity[i] * (1 + 1e-9):
+            raise BadRequest(f"{field}: joint {name!r} moves at {v[i]:.4g} rad/s, over its limit "
+                             f"{lim.velocity[i]:.4g}", field=f"{field}.velocity")
+        if abs(a[i]) > lim.acceleration[i] * (1 + 1e-9):
+            raise BadRequest(f"{field}: joint {name!r} accelerates at {a[i]:.4g} rad/s^2, over its limit "
+                             f"{lim.acceleration[i]:.4g}", field=f"{field}.acceleration")
+    return JointState(np.clip(p, lim.lower, lim.upper), v, a)

@@ -1,0 +1,112 @@
+"""The :class:`Trajectory`: what the planner hands to the service and the adapters.
+
+Samples at the adapter's control rate (the duration is a whole number of cycles), each
+with position, velocity, acceleration and jerk per joint and the actuator commands (servo
+pulses [us], stepper micro-steps), all checked against every limit before the trajectory
+exists (:mod:`planning.checks`), and a way to evaluate any time in between.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from robots import Robot
+
+from .checks import actuator_commands, check_samples
+from .state import JointState
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+Evaluator = Callable[[float], tuple[FloatArray, FloatArray, FloatArray]]
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A checked, sampled joint trajectory.
+
+    Attributes:
+        robot: the arm's name.
+        path: ``"joint"``, ``"line"`` or ``"stop"``.
+        joint_names: joint order of the columns.
+        actuator_names, actuator_units: the columns of ``commands`` and their units.
+        rate_hz: sample rate [Hz]; ``times`` are ``k / rate_hz``.
+        duration: [s], a whole number of cycles.
+        times: (k,) [s]. position (k, n) [rad], velocity [rad/s], acceleration [rad/s^2],
+            jerk [rad/s^3] (forward differences of the acceleration over one cycle).
+        commands: (k, m) integer actuator commands for each sample.
+    """
+
+    robot: str
+    path: str
+    joint_names: tuple[str, ...]
+    actuator_names: tuple[str, ...]
+    actuator_units: tuple[str, ...]
+    rate_hz: float
+    duration: float
+    times: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+    jerk: FloatArray
+    commands: IntArray
+    evaluator: Evaluator = field(repr=False, compare=False)
+
+    def at(self, t: float) -> JointState:
+        """The state at time ``t`` [s] (clamped to [0, duration])."""
+        p, v, a = self.evaluator(min(max(float(t), 0.0), self.duration))
+        return JointState(p, v, a)
+
+    @property
+    def start(self) -> JointState:
+        return JointState(self.position[0], self.velocity[0], self.acceleration[0])
+
+    @property
+    def end(self) -> JointState:
+        return JointState(self.position[-1], self.velocity[-1], self.acceleration[-1])
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: what ``armd/<robot>/trajectory`` carries."""
+        return {
+            "robot": self.robot,
+            "path": self.path,
+            "joint_names": list(self.joint_names),
+            "actuator_names": list(self.actuator_names),
+            "actuator_units": list(self.actuator_units),
+            "rate_hz": self.rate_hz,
+            "duration": self.duration,
+            "times": self.times.tolist(),
+            "position": self.position.tolist(),
+            "velocity": self.velocity.tolist(),
+            "acceleration": self.acceleration.tolist(),
+            "commands": self.commands.tolist(),
+        }
+
+
+def forward_jerk(acceleration: FloatArray, dt: float) -> FloatArray:
+    """(a[k+1] - a[k]) / dt per sample, 0 on the last [rad/s^3]."""
+    j = np.zeros_like(acceleration)
+    if len(acceleration) > 1:
+        j[:-1] = np.diff(acceleration, axis=0) / dt
+    return j
+
+
+def build(robot: Robot, path: str, rate_hz: float, duration: float, times: FloatArray, position: FloatArray,
+          velocity: FloatArray, acceleration: FloatArray, evaluator: Evaluator) -> Trajectory:
+    """Check every sample against every limit, map to actuator commands, and wrap it up."""
+    jerk = forward_jerk(acceleration, 1.0 / rate_hz)
+    check_samples(robot, times, position, velocity, acceleration, jerk)
+    # noise within POSITION_TOL of a box limit is put exactly on it (anything more has raised)
+    position = np.clip(position, robot.limits.lower, robot.limits.upper)
+    commands = actuator_commands(robot, times, position)
+    acts = robot.actuators.actuators
+    return Trajectory(
+        robot=robot.name, path=path, joint_names=robot.joint_names,
+        actuator_names=tuple(a.name for a in acts), actuator_units=tuple(a.unit for a in acts),
+        rate_hz=rate_hz, duration=duration, times=times, position=position, velocity=velocity,
+        acceleration=acceleration, jerk=jerk, commands=commands, evaluator=evaluator,
+    )
