@@ -31,6 +31,14 @@ def check_samples(robot: Robot, times: FloatArray, position: FloatArray, velocit
     """Raise the first limit any sample breaks (rows are samples at ``times`` [s])."""
     lim = robot.limits
     names = robot.joint_names
+    for values, kind in ((position, "position"), (velocity, "velocity"), (acceleration, "acceleration"),
+                         (jerk, "jerk")):
+        finite = np.isfinite(values)
+        if not finite.all():  # NaN compares false with every limit: catch it before anything else
+            k, j = _first(~finite)
+            raise LimitError(f"joint {names[j]!r} {kind} is not a number at t = {times[k]:.4f} s",
+                             name=names[j], value=float(values[k, j]), bounds=(-np.inf, np.inf), kind=kind,
+                             time=float(times[k]))
     bad = (position < lim.lower - POSITION_TOL) | (position > lim.upper + POSITION_TOL)
     if bad.any():
         k, j = _first(bad)

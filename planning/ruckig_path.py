@@ -66,16 +66,45 @@ class RuckigPath:
         return np.array(p), np.array(v), np.array(a)
 
     def sample(self, times: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration at every time (sorted) [s]: each segment's jerk
+        phases integrated in closed form, vectorised over the samples (what ``at_time``
+        computes one call at a time)."""
         n = len(times)
         P, V, A = np.empty((n, self.nq)), np.empty((n, self.nq)), np.empty((n, self.nq))
-        k = 0
-        last = len(self.segments) - 1
-        for i, t in enumerate(times.tolist()):
-            t = min(max(t, 0.0), self.duration)
-            while k < last and t > self.starts[k + 1]:
-                k += 1
-            P[i], V[i], A[i] = self.segments[k].at_time(t - self.starts[k])
+        t = np.clip(times, 0.0, self.duration)
+        seg = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.segments) - 1)
+        for k, traj in enumerate(self.segments):
+            rows = np.flatnonzero(seg == k)
+            if len(rows) == 0:
+                continue
+            local = np.minimum(t[rows] - self.starts[k], traj.duration)
+            for dof, prof in enumerate(traj.profiles[0]):
+                P[rows, dof], V[rows, dof], A[rows, dof] = _evaluate(_phases(prof), local)
         return P, V, A
+
+
+def _phases(prof: ruckig.Profile) -> FloatArray:
+    """Rows (duration, jerk, a0, v0, p0) of one degree of freedom's profile: the brake
+    pre-profile, the seven main phases, the acceleration post-profile."""
+    rows: list[tuple[float, float, float, float, float]] = []
+    for part in (prof.brake, None, prof.accel):
+        if part is None:
+            rows.extend((prof.t[i], prof.j[i], prof.a[i], prof.v[i], prof.p[i]) for i in range(7))
+        elif part.duration > 0:
+            rows.extend((part.t[i], part.j[i], part.a[i], part.v[i], part.p[i]) for i in range(2))
+    T, j, a0, v0, p0 = rows[-1]  # after the profile: its end state, at constant acceleration
+    rows.append((np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6))))
+    return np.array(rows, dtype=float)
+
+
+def _evaluate(phases: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Integrate the constant-jerk phases to the times ``t`` [s] (past the profile's end: the
+    final state carried on at constant acceleration, as Ruckig's ``at_time`` does)."""
+    starts = np.concatenate(([0.0], np.cumsum(phases[:-1, 0])))
+    k = np.searchsorted(starts, t, side="right") - 1
+    dt = t - starts[k]
+    j, a0, v0, p0 = phases[k, 1], phases[k, 2], phases[k, 3], phases[k, 4]
+    return (p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6)), v0 + dt * (a0 + dt * j / 2), a0 + dt * j)
 
 
 def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_velocity: FloatArray,

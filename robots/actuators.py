@@ -159,6 +159,8 @@ class ActuatorMap:
         range; nothing is clamped.
         """
         a = self.angles(q)
+        if not np.all(np.isfinite(a)):
+            raise BadRequest("joint positions must be finite to map them to actuator commands", field="q")
         self.check_angles(a)
         raw = self._raw_commands(a)
         cmds = np.rint(raw).astype(np.int64)

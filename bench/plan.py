@@ -1,0 +1,88 @@
+"""Planning benchmark: point-to-point plans and Cartesian lines, in-process.
+
+* point to point: a Cartesian goal (IK seeded with the start) -> Ruckig -> samples at
+  50 Hz -> safety gate -> actuator commands: ``planning.plan(robot, start, {"target": p})``.
+* line: a 0.2 m straight line (or as much of 0.2 m as stays in reach) from a start at rest,
+  ``path="line"``.
+* peer in the same run: the bare Ruckig calculation of the same point-to-point segment,
+  the floor under the whole plan.
+
+Run: ``.venv/bin/python bench/plan.py [--n 300]``. Prints a Markdown table of medians and
+p99 [us] per arm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import ruckig
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import planning
+import robots
+from planning import PlanRejected
+
+
+def _random_q(arm: robots.Robot, rng: np.random.Generator, n: int) -> np.ndarray:
+    lim = arm.limits
+    qs = rng.uniform(lim.lower, lim.upper, size=(20 * n, arm.nq))
+    return qs[lim.contains_batch(qs, tol=0.0)][:n]
+
+
+def _stats(us: list[float]) -> str:
+    a = np.array(us)
+    return f"{np.median(a):.0f} | {np.percentile(a, 99):.0f}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=300, help="plans per arm and kind")
+    args = ap.parse_args()
+    rng = np.random.default_rng(7)
+    print("| arm | p2p median us | p2p p99 us | bare Ruckig median us | p99 | line 0.2 m median us | p99 | "
+          "lines planned |")
+    print("|---|---|---|---|---|---|---|---|")
+    for name in robots.names():
+        arm = robots.load(name)
+        starts = _random_q(arm, rng, args.n)
+        goals = _random_q(arm, rng, args.n)
+        targets = [arm.fk(q) for q in goals]
+        planning.plan(arm, starts[0], {"target": targets[0].tolist()})  # warm-up (compiled code)
+        p2p, bare, line = [], [], []
+        otg = ruckig.Ruckig(arm.nq, 0.02)
+        for q0, q1, t in zip(starts, goals, targets, strict=True):
+            t0 = time.perf_counter_ns()
+            planning.plan(arm, q0, {"target": t.tolist()})
+            p2p.append((time.perf_counter_ns() - t0) / 1e3)
+            inp = ruckig.InputParameter(arm.nq)
+            inp.current_position, inp.target_position = q0.tolist(), q1.tolist()
+            inp.max_velocity = arm.limits.velocity.tolist()
+            inp.max_acceleration = arm.limits.acceleration.tolist()
+            inp.max_jerk = arm.limits.jerk.tolist()
+            traj = ruckig.Trajectory(arm.nq)
+            t0 = time.perf_counter_ns()
+            otg.calculate(inp, traj)
+            bare.append((time.perf_counter_ns() - t0) / 1e3)
+        planned = 0
+        for q0 in starts[: max(10, args.n // 3)]:
+            p0 = arm.fk(q0)
+            d = rng.normal(size=3)
+            p1 = p0 + 0.2 * d / np.linalg.norm(d)
+            t0 = time.perf_counter_ns()
+            try:
+                planning.plan(arm, q0, {"target": p1.tolist()}, path="line")
+                line.append((time.perf_counter_ns() - t0) / 1e3)
+                planned += 1
+            except PlanRejected:
+                pass
+        tried = max(10, args.n // 3)
+        print(f"| {name} | {_stats(p2p)} | {_stats(bare)} | {_stats(line) if line else '- | -'} | {planned}/{tried} |")
+
+
+if __name__ == "__main__":
+    main()
