@@ -53,6 +53,43 @@ def cmd_catalogue(args: argparse.Namespace) -> int:
     return 0
 
 
+def _numbers(values: list[str], what: str) -> list[float]:
+    try:
+        return [float(v) for v in values]
+    except ValueError:
+        raise robots.BadRequest(f"{what} must be numbers, got {' '.join(values)}", field=what) from None
+
+
+def _approach(value: str | None) -> object:
+    if value is None or value in ("parallel", "perpendicular", "free"):
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        raise robots.BadRequest(f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}",
+                                field="approach") from None
+
+
+def cmd_plot(args: argparse.Namespace) -> int:
+    import planning
+    from planning.plot import plot_trajectory
+
+    arms = _all_robots(args.robots_dir)
+    if args.robot not in arms:
+        raise robots.UnknownRobot(args.robot, arms)
+    arm = arms[args.robot]
+    start = _numbers(args.start, "start") if args.start else arm.neutral
+    if (args.goal is None) == (args.target is None):
+        raise robots.BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
+    goal: object = (_numbers(args.goal, "goal") if args.goal is not None
+                    else {"target": _numbers(args.target, "target"), "approach": _approach(args.approach)})
+    traj = planning.plan(arm, start, goal, path=args.path, speed=args.speed, rate_hz=args.rate)
+    out = plot_trajectory(traj, arm, args.out)
+    print(f"{out}: {traj.path} trajectory of {arm.name}, {traj.duration:.3f} s, {len(traj.times)} samples "
+          f"at {traj.rate_hz:g} Hz")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -60,6 +97,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--robots-dir", help="a folder of your own arms (robot.urdf + robot.toml each)")
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=cmd_catalogue)
+
+    p = sub.add_parser("plot", help="plan a trajectory offline and write a PNG of it (limits drawn)")
+    p.add_argument("robot")
+    p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector [rad] (default: neutral)")
+    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
+    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
+    p.add_argument("--path", choices=["joint", "line"], default="joint")
+    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
+    p.add_argument("--rate", type=float, default=None, help="samples per second (default: the arm's)")
+    p.add_argument("--out", default="trajectory.png", help="PNG file to write")
+    p.add_argument("--robots-dir", help="a folder of your own arms")
+    p.set_defaults(func=cmd_plot)
     return parser
 
 
