@@ -22,10 +22,10 @@ import ruckig
 from numpy.typing import NDArray
 
 from robots import Robot
-from solvers import solve_ik
+from solvers import solve_ik, solve_ik_batch
 
 from .errors import PlanRejected
-from .ruckig_path import whole_cycles
+from .ruckig_path import RuckigPath, whole_cycles
 from .state import JointState
 from .trajectory import Evaluator, forward_jerk
 
@@ -62,6 +62,26 @@ class LinePath:
         f = 0.0 if self.length == 0 else s / self.length
         return math.remainder(self.pitch0 + f * self.dpitch, 2 * math.pi)
 
+    def points(self, ss: FloatArray) -> FloatArray:
+        f = np.zeros_like(ss) if self.length == 0 else ss / self.length
+        return self.p0 + f[:, None] * (self.p1 - self.p0)
+
+    def pitches(self, ss: FloatArray) -> FloatArray | None:
+        if not self.has_pitch:
+            return None
+        f = np.zeros_like(ss) if self.length == 0 else ss / self.length
+        return np.remainder(self.pitch0 + f * self.dpitch + math.pi, 2 * math.pi) - math.pi
+
+    def ik_many(self, ss: FloatArray, seeds: FloatArray) -> FloatArray:
+        """IK at every path parameter (batch), each from its seed row; refuses the line at the
+        first point that is not reached exactly."""
+        r = solve_ik_batch(self.robot, self.points(ss), approach=self.pitches(ss), seeds=seeds)
+        bad = np.flatnonzero(r.status != "ok")
+        if len(bad):
+            i = int(bad[0])
+            self.ik(float(ss[i]), seeds[i])  # raises with the single solver's reason
+        return r.q
+
     def ik(self, s: float, seed: FloatArray) -> FloatArray:
         r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed)
         if r.status != "ok":
@@ -71,20 +91,34 @@ class LinePath:
         return r.q
 
 
+def _jump(qs: FloatArray) -> tuple[int, int, float] | None:
+    """The first consecutive pair of rows more than MAX_JUMP apart: (row, joint, jump), or None."""
+    jumps = np.abs(np.diff(qs, axis=0))
+    over = np.argwhere(jumps > MAX_JUMP)
+    if not len(over):
+        return None
+    k, j = (int(v) for v in over[0])
+    return k + 1, j, float(jumps[k, j])
+
+
 def _grid(line: LinePath) -> tuple[FloatArray, FloatArray]:
+    """IK on the grid: all at once from the start's configuration (the branch nearest it), and
+    where that is not continuous, point by point, each seeded by the last."""
     n = max(2, math.ceil(line.length / GRID_STEP) + 1)
     ss = np.linspace(0.0, line.length, n)
-    qs = np.empty((n, line.robot.nq))
+    qs = line.ik_many(ss, np.broadcast_to(line.q0, (n, line.robot.nq)))
     qs[0] = line.q0
+    if _jump(qs) is None:
+        return ss, qs
     for k in range(1, n):
         qs[k] = line.ik(float(ss[k]), qs[k - 1])
-        jump = np.abs(qs[k] - qs[k - 1])
-        if float(np.max(jump)) > MAX_JUMP:
-            j = int(np.argmax(jump))
-            raise PlanRejected(
-                f"the line needs a branch flip {ss[k]:.4f} m from the start: joint "
-                f"{line.robot.joint_names[j]!r} would jump {jump[j]:.3f} rad (elbow or yaw turning over)",
-                s=float(ss[k]), joint=line.robot.joint_names[j])
+    flip = _jump(qs)
+    if flip is not None:
+        k, j, size = flip
+        raise PlanRejected(
+            f"the line needs a branch flip {ss[k]:.4f} m from the start: joint "
+            f"{line.robot.joint_names[j]!r} would jump {size:.3f} rad (elbow or yaw turning over)",
+            s=float(ss[k]), joint=line.robot.joint_names[j])
     return ss, qs
 
 
@@ -137,14 +171,10 @@ def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: 
         prof = _profile(line.length, v, a, j, dt)
         k = whole_cycles(prof.duration, dt)
         times = np.arange(k + 1, dtype=float) * dt
-        P = np.empty((k + 1, robot.nq))
-        seed = line.q0
-        svals = np.empty(k + 1)
-        for i, t in enumerate(times.tolist()):
-            s = prof.at_time(min(t, prof.duration))[0][0]
-            svals[i] = s
-            P[i] = line.q0 if i == 0 else line.ik(s, seed)
-            seed = P[i]
+        svals = RuckigPath([prof], 1).sample(times)[0][:, 0]
+        nearest = np.clip(np.searchsorted(ss, svals), 0, len(ss) - 1)  # seed each sample from the grid
+        P = line.ik_many(svals, qs[nearest])
+        P[0] = line.q0
         V, A = _derivatives(P, dt)
         J = forward_jerk(A, dt)
         if (np.all(np.abs(V) <= lim.velocity) and np.all(np.abs(A) <= lim.acceleration)

@@ -78,33 +78,53 @@ class RuckigPath:
             if len(rows) == 0:
                 continue
             local = np.minimum(t[rows] - self.starts[k], traj.duration)
-            for dof, prof in enumerate(traj.profiles[0]):
-                P[rows, dof], V[rows, dof], A[rows, dof] = _evaluate(_phases(prof), local)
+            p, v, a = _evaluate(_phase_table(traj.profiles[0]), local)
+            P[rows], V[rows], A[rows] = p, v, a
         return P, V, A
 
 
 def _phases(prof: ruckig.Profile) -> FloatArray:
     """Rows (duration, jerk, a0, v0, p0) of one degree of freedom's profile: the brake
-    pre-profile, the seven main phases, the acceleration post-profile."""
-    rows: list[tuple[float, float, float, float, float]] = []
-    for part in (prof.brake, None, prof.accel):
-        if part is None:
-            rows.extend((prof.t[i], prof.j[i], prof.a[i], prof.v[i], prof.p[i]) for i in range(7))
-        elif part.duration > 0:
-            rows.extend((part.t[i], part.j[i], part.a[i], part.v[i], part.p[i]) for i in range(2))
-    T, j, a0, v0, p0 = rows[-1]  # after the profile: its end state, at constant acceleration
-    rows.append((np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6))))
-    return np.array(rows, dtype=float)
+    pre-profile, the seven main phases, the acceleration post-profile, then the end state
+    carried on at constant acceleration (as Ruckig's ``at_time`` does past the end)."""
+    parts = []
+    for pre in (prof.brake,):
+        if pre.duration > 0:
+            parts.append(np.column_stack([pre.t, pre.j, pre.a, pre.v, pre.p]))
+    parts.append(np.column_stack([prof.t, prof.j, prof.a[:7], prof.v[:7], prof.p[:7]]))
+    post = prof.accel
+    if post.duration > 0:
+        parts.append(np.column_stack([post.t, post.j, post.a, post.v, post.p]))
+    rows = np.vstack(parts)
+    T, j, a0, v0, p0 = rows[-1]
+    end = [np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6))]
+    return np.vstack([rows, end])
 
 
-def _evaluate(phases: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Integrate the constant-jerk phases to the times ``t`` [s] (past the profile's end: the
-    final state carried on at constant acceleration, as Ruckig's ``at_time`` does)."""
-    starts = np.concatenate(([0.0], np.cumsum(phases[:-1, 0])))
-    k = np.searchsorted(starts, t, side="right") - 1
-    dt = t - starts[k]
-    j, a0, v0, p0 = phases[k, 1], phases[k, 2], phases[k, 3], phases[k, 4]
-    return (p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6)), v0 + dt * (a0 + dt * j / 2), a0 + dt * j)
+def _phase_table(profiles: Sequence[ruckig.Profile]) -> FloatArray:
+    """Every degree of freedom's phase rows, padded in front with empty phases to one length:
+    shape (dofs, phases, 5)."""
+    tables = [_phases(p) for p in profiles]
+    width = max(len(t) for t in tables)
+    out = np.zeros((len(tables), width, 5))
+    for d, t in enumerate(tables):
+        out[d, width - len(t):] = t  # zero-length phases first: they start where the next one does
+    return out
+
+
+def _evaluate(table: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Integrate every degree of freedom's constant-jerk phases to the times ``t`` [s]:
+    position, velocity, acceleration, each (len(t), dofs)."""
+    starts = np.concatenate([np.zeros((table.shape[0], 1)), np.cumsum(table[:, :-1, 0], axis=1)], axis=1)
+    k = (t[None, :, None] >= starts[:, None, :]).sum(axis=2) - 1  # (dofs, samples): the phase each is in
+    d = np.arange(table.shape[0])[:, None]
+    row = table[d, k]  # (dofs, samples, 5)
+    dt = t[None, :] - starts[d, k]
+    j, a0, v0, p0 = row[..., 1], row[..., 2], row[..., 3], row[..., 4]
+    p = p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6))
+    v = v0 + dt * (a0 + dt * j / 2)
+    a = a0 + dt * j
+    return p.T, v.T, a.T
 
 
 def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_velocity: FloatArray,

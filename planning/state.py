@@ -56,15 +56,15 @@ def joint_state(robot: Robot, start: object, field: str = "start") -> JointState
     p = robot.joint_vector(pos, f"{field}.position")
     v = np.zeros(robot.nq) if vel is None else robot.joint_vector(vel, f"{field}.velocity")
     a = np.zeros(robot.nq) if acc is None else robot.joint_vector(acc, f"{field}.acceleration")
-    bad = robot.limits.violations(p, tol=1e-9)
-    if bad:
-        raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=f"{field}.position")
     lim = robot.limits
-    for i, name in enumerate(robot.joint_names):
-        if abs(v[i]) > lim.velocity[i] * (1 + 1e-9):
-            raise BadRequest(f"{field}: joint {name!r} moves at {v[i]:.4g} rad/s, over its limit "
-                             f"{lim.velocity[i]:.4g}", field=f"{field}.velocity")
-        if abs(a[i]) > lim.acceleration[i] * (1 + 1e-9):
-            raise BadRequest(f"{field}: joint {name!r} accelerates at {a[i]:.4g} rad/s^2, over its limit "
-                             f"{lim.acceleration[i]:.4g}", field=f"{field}.acceleration")
+    if not lim.contains(p, tol=1e-9):
+        bad = lim.violations(p, tol=1e-9)
+        raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=f"{field}.position")
+    for values, limit, what, unit in ((v, lim.velocity, "velocity", "rad/s"),
+                                      (a, lim.acceleration, "acceleration", "rad/s^2")):
+        over = np.abs(values) > limit * (1 + 1e-9)
+        if over.any():
+            i = int(np.argmax(over))
+            raise BadRequest(f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
+                             f"limit {limit[i]:.4g}", field=f"{field}.{what}")
     return JointState(np.clip(p, lim.lower, lim.upper), v, a)

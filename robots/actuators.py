@@ -144,6 +144,11 @@ class ActuatorMap:
         self._angle_lo = np.array([a.angle_range[0] for a in actuators])
         self._angle_hi = np.array([a.angle_range[1] for a in actuators])
         self.names = tuple(a.name for a in actuators)
+        # every actuator's command is affine in its angle: command = gain * angle + bias
+        self._bias = np.array([float(a.to_command(np.array(0.0))) for a in actuators])
+        self._gain = np.array([float(a.to_command(np.array(1.0))) for a in actuators]) - self._bias
+        self._cmd_lo = np.array([a.command_range[0] for a in actuators], dtype=float)
+        self._cmd_hi = np.array([a.command_range[1] for a in actuators], dtype=float)
 
     def __len__(self) -> int:
         return len(self.actuators)
@@ -162,16 +167,14 @@ class ActuatorMap:
         if not np.all(np.isfinite(a)):
             raise BadRequest("joint positions must be finite to map them to actuator commands", field="q")
         self.check_angles(a)
-        raw = self._raw_commands(a)
-        cmds = np.rint(raw).astype(np.int64)
-        for j, act in enumerate(self.actuators):
-            lo, hi = act.command_range
-            col = cmds[..., j]
-            bad = (col < lo) | (col > hi)
-            if np.any(bad):
-                value = float(np.atleast_1d(col)[np.argmax(np.atleast_1d(bad))])
-                raise ActuatorRangeError(act.name, value, (float(lo), float(hi)), act.unit)
-        return cmds
+        cmds = np.rint(a * self._gain + self._bias)
+        bad = (cmds < self._cmd_lo) | (cmds > self._cmd_hi)
+        if np.any(bad):
+            row, j = np.argwhere(np.atleast_2d(bad))[0]
+            act = self.actuators[j]
+            value = float(np.atleast_2d(cmds)[row, j])
+            raise ActuatorRangeError(act.name, value, (float(self._cmd_lo[j]), float(self._cmd_hi[j])), act.unit)
+        return cmds.astype(np.int64)
 
     def check_angles(self, a: FloatArray) -> None:
         """Raise :class:`ActuatorRangeError` if any actuator angle [rad] leaves its range."""
@@ -183,12 +186,6 @@ class ActuatorMap:
             value = float(np.atleast_2d(a)[row, col])
             raise ActuatorRangeError(act.name, value, act.angle_range, "rad")
 
-    def _raw_commands(self, a: FloatArray) -> FloatArray:
-        out = np.empty_like(a)
-        for j, act in enumerate(self.actuators):
-            out[..., j] = act.to_command(a[..., j])
-        return out
-
     def angles_from_commands(self, commands: FloatArray | IntArray) -> FloatArray:
         """Actuator angles [rad] from commands (pulses [us] or micro-steps)."""
         c = np.asarray(commands, dtype=float)
@@ -197,10 +194,7 @@ class ActuatorMap:
                 f"expected {len(self.actuators)} actuator commands ({', '.join(self.names)}), got {c.shape[-1]}",
                 field="commands",
             )
-        out = np.empty_like(c)
-        for j, act in enumerate(self.actuators):
-            out[..., j] = act.to_angle(c[..., j])
-        return out
+        return (c - self._bias) / self._gain
 
     def joints_from_commands(self, commands: FloatArray | IntArray, tol: float | None = None) -> FloatArray:
         """Joint vector(s) [rad] that the given commands put the arm in (hardware read-back).

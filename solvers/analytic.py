@@ -60,8 +60,9 @@ def solve_many(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray,
                C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, refs: FloatArray,
                points: FloatArray, prefs: FloatArray, q_out: FloatArray, code_out: IntArray,
                pitch_out: FloatArray, branch_out: IntArray, err_out: FloatArray, reached_out: FloatArray) -> None:
-    """:func:`solve_one` for each row of ``points`` (m, 3) with seed ``refs`` row (m, n): the
-    nearest branch into ``q_out``, its code, pitch, branch id, formula error and tool point."""
+    """:func:`solve_one` for each row of ``points`` (m, 3) with seed ``refs`` row (m, n) and
+    preferred pitches ``prefs`` row (m, k): the nearest branch into ``q_out``, its code, pitch,
+    branch id, formula error and tool point."""
     n = refs.shape[1]
     qs = np.empty((4, n))
     ids = np.empty(4, dtype=np.int64)
@@ -69,7 +70,7 @@ def solve_many(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray,
     work = np.empty((4, 5))
     for i in range(points.shape[0]):
         code, m, phi = solve_one(P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, refs[i],
-                                 points[i, 0], points[i, 1], points[i, 2], prefs, qs, ids, errs, work)
+                                 points[i, 0], points[i, 1], points[i, 2], prefs[i], qs, ids, errs, work)
         code_out[i] = code
         pitch_out[i] = phi
         if m > 0:

@@ -85,14 +85,25 @@ def solve_ik_batch(
     seeds: Sequence[float] | FloatArray | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
 ) -> BatchIKResult:
-    """IK for every row of ``targets`` (m, 3) [m]; ``seeds`` one joint vector for all, or (m, n).
+    """IK for every row of ``targets`` (m, 3) [m]; ``seeds`` one joint vector for all, or (m, n);
+    ``approach`` one approach for all, or one pitch [rad] per target (a sequence of m numbers).
 
     Raises :class:`BadRequest` (and solves nothing) when any input is malformed.
     """
     arm = _arm(robot)
     pts = _targets(targets)
     m, n = len(pts), robot.nq
-    pitch = approach_pitch(robot, approach)
+    per_target = isinstance(approach, (list, tuple, np.ndarray))
+    if per_target:
+        pitches = np.asarray(approach, dtype=float) if len(approach) else np.zeros(0)  # type: ignore[arg-type]
+        if pitches.shape != (m,):
+            raise BadRequest(f"approach must be one approach or {m} pitches, got shape {list(pitches.shape)}",
+                             field="approach")
+        for p in pitches.tolist():
+            approach_pitch(robot, p)  # each one valid for this arm
+        pitch: float | None = 0.0
+    else:
+        pitch = approach_pitch(robot, approach)
     if seeds is None:
         refs = np.broadcast_to(robot.neutral, (m, n))
     else:
@@ -122,14 +133,18 @@ def solve_ik_batch(
         return BatchIKResult(status, q, err, reached, pitch_out, branch)
 
     fp = arm.fp
-    prefs = FREE_PITCHES if pitch is None else np.array([pitch])
+    if per_target:
+        prefs = np.ascontiguousarray(pitches.reshape(m, 1))
+    else:
+        shared = FREE_PITCHES if pitch is None else np.array([pitch])
+        prefs = np.broadcast_to(shared, (m, len(shared)))
     codes = np.empty(m, dtype=np.int64)
     ids = np.empty(m, dtype=np.int64)
     solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
                refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
     solved = codes != NONE
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
-    status[good] = np.where((codes[good] == EXACT) | (pitch is None), OK, APPROXIMATE)
+    status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
     branch[good] = np.array(BRANCH_NAMES)[ids[good]]
     if robot.geometry is not None and robot.geometry.level:
         pitch_out[good] = 0.0
@@ -137,8 +152,10 @@ def solve_ik_batch(
         pitch_sum = q[good][:, [int(j) for j in fp.J[1:] if j >= 0]].sum(axis=1)
         pitch_out[good] = np.remainder(pitch_sum + math.pi, 2 * math.pi) - math.pi
     for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
-        r = solve_ik(robot, pts[i], approach=approach, seed=refs[i], tolerance=tolerance) if solved[i] \
-            else _closest(arm, pts[i], pitch, refs[i], tolerance, 0)
+        a_i = float(pitches[i]) if per_target else approach
+        p_i = float(pitches[i]) if per_target else pitch
+        r = solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance) if solved[i] \
+            else _closest(arm, pts[i], p_i, refs[i], tolerance, 0)
         _store(int(i), r, status, branch, q, err, reached, pitch_out)
     return BatchIKResult(status, q, err, reached, pitch_out, branch)
 

@@ -37,6 +37,25 @@ def test_batch_equals_single(name: str, approach: str | None) -> None:
     assert np.all(batch.status[-20:] == "unreachable")
 
 
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut"])
+def test_batch_with_a_pitch_per_target(name: str) -> None:
+    arm = robots.load(name)
+    rng = np.random.default_rng(33)
+    qs = random_in_limits(arm, 300, seed=34)
+    targets = np.array([arm.fk(q) for q in qs])
+    pitches = rng.uniform(-math.pi, math.pi, size=len(qs))
+    batch = solve_ik_batch(arm, targets, approach=pitches)
+    for i in range(len(qs)):
+        single = solve_ik(arm, targets[i], approach=float(pitches[i]))
+        assert batch.status[i] == single.status
+        assert np.allclose(batch.q[i], single.q, atol=1e-12)
+    assert {"ok", "approximate"} <= set(batch.status.tolist())
+    with pytest.raises(robots.BadRequest):
+        solve_ik_batch(arm, targets, approach=pitches[:-1])
+    with pytest.raises(robots.BadRequest):
+        solve_ik_batch(arm, targets[:1], approach=[7.0])
+
+
 def test_batch_with_seeds() -> None:
     arm = robots.load("gupta3")
     qs = random_in_limits(arm, 200, seed=32)
