@@ -90,6 +90,105 @@ def cmd_plot(args: argparse.Namespace) -> int:
     return 0
 
 
+def _network_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on (default tcp/127.0.0.1:7447 for the embedded router)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="join an existing Zenoh network through this endpoint instead of embedding a router")
+    p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
+    p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
+
+
+def _wait_for_signal() -> None:
+    import signal
+    import threading
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    while not stop.is_set():
+        stop.wait(0.5)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import logging
+
+    import zenoh
+
+    from service.server import Service
+    from service.zconfig import network_config
+
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    arms = _all_robots(args.robots_dir)
+    conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config)
+    zenoh.init_log_from_env_or("error")
+    session = zenoh.open(conf)
+    service = Service(session, arms, prefix=args.prefix)
+    sims = []
+    if args.sim:
+        from clients.sim import SimAdapter
+
+        sims = [SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale) for arm in arms.values()]
+    where = ", ".join(args.connect) if args.connect else ", ".join(args.listen or ["tcp/127.0.0.1:7447"])
+    extra = f", with simulated arms (x{args.time_scale:g} real time)" if args.sim else ""
+    print(f"armd serving {', '.join(arms)} on {where} (prefix {args.prefix}){extra}; Ctrl-C to stop", flush=True)
+    try:
+        _wait_for_signal()
+    finally:
+        for sim in sims:
+            sim.close()
+        service.close()
+        session.close()
+    return 0
+
+
+def cmd_adapter(args: argparse.Namespace) -> int:
+    import logging
+
+    import zenoh
+
+    from service.zconfig import network_config
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    arms = _all_robots(args.robots_dir)
+    if args.robot not in arms:
+        raise robots.UnknownRobot(args.robot, arms)
+    connect = args.connect or ([] if args.listen or args.config else ["tcp/127.0.0.1:7447"])
+    zenoh.init_log_from_env_or("error")
+    session = zenoh.open(network_config(listen=args.listen, connect=connect or None, config_file=args.config))
+    if args.kind == "sim":
+        from clients.sim import SimAdapter
+
+        adapter = SimAdapter(session, arms[args.robot], prefix=args.prefix, time_scale=args.time_scale)
+    else:
+        raise robots.BadRequest(f"adapter kind {args.kind!r} is not available yet; kinds: sim", field="kind")
+    print(f"armd {args.kind} adapter {adapter.id} driving {args.robot}; Ctrl-C to stop", flush=True)
+    try:
+        _wait_for_signal()
+    finally:
+        adapter.close()
+        session.close()
+    return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from service.zconfig import network_config
+
+    zenoh.init_log_from_env_or("error")
+    session = zenoh.open(network_config(listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
+                                        config_file=args.config, mode="router"))
+    print(f"zenoh router {session.zid()} listening on {', '.join(args.listen or ['tcp/127.0.0.1:7447'])}",
+          flush=True)
+    try:
+        _wait_for_signal()
+    finally:
+        session.close()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -110,6 +209,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="trajectory.png", help="PNG file to write")
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.set_defaults(func=cmd_plot)
+
+    p = sub.add_parser("serve", help="run the service (embeds a Zenoh router unless --connect is given)")
+    _network_args(p)
+    p.add_argument("--robots-dir", help="a folder of your own arms, served with the catalogue")
+    p.add_argument("-v", "--verbose", action="store_true", help="log one line per request")
+    p.add_argument("--sim", action="store_true", help="also run a simulated arm (adapter) for every arm")
+    p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (with --sim)")
+    p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("adapter", help="run a hardware adapter daemon for one arm")
+    p.add_argument("kind", choices=["sim"], help="sim: a simulated arm")
+    p.add_argument("robot")
+    _network_args(p)
+    p.add_argument("--robots-dir", help="a folder of your own arms")
+    p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
+    p.set_defaults(func=cmd_adapter)
+
+    p = sub.add_parser("router", help="run a standalone Zenoh router (no zenohd needed)")
+    _network_args(p)
+    p.set_defaults(func=cmd_router)
     return parser
 
 

@@ -28,3 +28,49 @@ def arm_copy(tmp_path: Path) -> Callable[..., Path]:
         return dst
 
     return make
+
+
+# -- Zenoh: a real router on 127.0.0.1, opened in-process ---------------------------------------
+
+import socket  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+
+import zenoh  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.fixture(scope="module")
+def router() -> Iterator[str]:
+    """A Zenoh router in this process, listening on a free loopback port: its endpoint."""
+    from service.zconfig import network_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(network_config(listen=[endpoint], mode="router"))
+    yield endpoint
+    session.close()
+
+
+@pytest.fixture(scope="module")
+def service(router: str) -> Iterator[object]:
+    """The armd service, on its own peer session joined to the router, serving the catalogue."""
+    from service.server import Service
+    from service.zconfig import network_config
+
+    session = zenoh.open(network_config(connect=[router]))
+    svc = Service(session, {n: robots.load(n) for n in robots.names()})
+    yield svc
+    svc.close()
+    session.close()
+
+
+@pytest.fixture(scope="module")
+def client(router: str, service: object) -> Iterator[object]:
+    from clients import ArmClient
+
+    with ArmClient(router, timeout=10.0) as c:
+        yield c

@@ -1,0 +1,228 @@
+"""``ArmClient``: armd from Python, over Zenoh.
+
+>>> with ArmClient() as armd:                      # doctest: +SKIP
+...     r = armd.ik("insomniac", [0.25, 0.05, 0.12], approach="perpendicular")
+...     r.status, r.q
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import zenoh
+from numpy.typing import NDArray
+
+from robots import ArmdError
+from service.protocol import encode
+from service.zconfig import client_config
+
+FloatArray = NDArray[np.float64]
+JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+class ServiceError(ArmdError):
+    """The service answered with an error: ``code`` is the protocol's (``bad_request``,
+    ``unknown_robot``, ``unreachable``, ``limit``, ``no_adapter``, ``too_large``, ``internal`` ...)."""
+
+    def __init__(self, reply: dict[str, Any]) -> None:
+        fields = {k: v for k, v in reply.items() if k not in ("code", "message")}
+        super().__init__(str(reply.get("message", "error")), **fields)
+        self.code = str(reply.get("code", "internal"))
+        self.field = fields.get("field")
+
+
+class NoReply(ArmdError):
+    """No service answered within the timeout (none running, or the network is down)."""
+
+    code = "timeout"
+
+
+@dataclass(frozen=True)
+class IKReply:
+    status: str
+    q: FloatArray
+    position_error: float
+    reached: FloatArray
+    pitch: float
+    pitch_error: float | None
+    branch: str
+    branches: list[dict[str, Any]]
+    reason: str | None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+
+@dataclass(frozen=True)
+class FKReply:
+    q: FloatArray
+    position: FloatArray
+    pitch: float
+    within_limits: bool
+
+
+@dataclass(frozen=True)
+class TrajectoryReply:
+    path: str
+    duration: float
+    rate_hz: float
+    joint_names: list[str]
+    times: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+    commands: NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class MoveReply:
+    id: str
+    path: str
+    duration: float
+    goal: FloatArray
+    start_source: str
+
+
+class ArmClient:
+    """A Zenoh session to an armd network, and one method per verb.
+
+    Args:
+        connect: endpoint(s) of a Zenoh router or of ``armd serve`` (default tcp/127.0.0.1:7447).
+        config: a Zenoh configuration file instead (credentials, TLS ...).
+        prefix: the service's key prefix.
+        timeout: seconds to wait for a reply [s].
+    """
+
+    def __init__(self, connect: str | Sequence[str] | None = None, *, config: str | None = None,
+                 prefix: str = "armd", timeout: float = 5.0) -> None:
+        endpoints = [connect] if isinstance(connect, str) else (list(connect) if connect else None)
+        self.session = zenoh.open(client_config(endpoints, config))
+        self.prefix = prefix.rstrip("/")
+        self.timeout = timeout
+
+    def __enter__(self) -> ArmClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        self.session.close()
+
+    # -- the verbs ---------------------------------------------------------------------------
+
+    def call(self, key: str, request: dict[str, Any] | None = None, timeout: float | None = None) -> dict[str, Any]:
+        """One request to ``<prefix>/<key>``: the reply object, or :class:`ServiceError` /
+        :class:`NoReply`."""
+        replies = self.session.get(f"{self.prefix}/{key}", payload=encode(request or {}), encoding=JSON,
+                                   timeout=self.timeout if timeout is None else timeout)
+        for reply in replies:
+            if reply.ok is not None:
+                out: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                return out
+            err = reply.err
+            assert err is not None
+            raise ServiceError(json.loads(err.payload.to_bytes()))
+        raise NoReply(f"no armd service answered {self.prefix}/{key} within {self.timeout} s")
+
+    def robots(self) -> list[dict[str, Any]]:
+        return list(self.call("robots")["robots"])
+
+    def info(self, robot: str) -> dict[str, Any]:
+        return self.call(f"{robot}/info")
+
+    def state(self, robot: str) -> dict[str, Any]:
+        """Where the service thinks the arm is: ``position``, ``velocity``, ``source``, ``moving``."""
+        return dict(self.info(robot)["state"])
+
+    def fk(self, robot: str, q: Sequence[float]) -> FKReply:
+        r = self.call(f"{robot}/fk", {"q": list(q)})
+        return FKReply(np.array(r["q"]), np.array(r["position"]), r["pitch"], r["within_limits"])
+
+    def ik(self, robot: str, target: object, *, approach: object = None, seed: Sequence[float] | None = None,
+           tolerance: float | None = None, quantise: bool = False) -> IKReply:
+        req: dict[str, Any] = {"target": _jsonable(target)}
+        if approach is not None:
+            req["approach"] = approach
+        if seed is not None:
+            req["seed"] = list(seed)
+        if tolerance is not None:
+            req["tolerance"] = tolerance
+        if quantise:
+            req["quantise"] = True
+        r = self.call(f"{robot}/ik", req)
+        return IKReply(r["status"], np.array(r["q"]), r["position_error"], np.array(r["reached"]), r["pitch"],
+                       r["pitch_error"], r["branch"], r["branches"], r["reason"])
+
+    def ik_batch(self, robot: str, targets: object, *, approach: object = None, seeds: object = None) -> dict[str, Any]:
+        req: dict[str, Any] = {"targets": _jsonable(targets)}
+        if approach is not None:
+            req["approach"] = _jsonable(approach)
+        if seeds is not None:
+            req["seeds"] = _jsonable(seeds)
+        return self.call(f"{robot}/ik", req)
+
+    def plan(self, robot: str, goal: object, *, start: object = None, path: str = "joint", speed: float = 1.0,
+             rate_hz: float | None = None, via: Sequence[object] = ()) -> TrajectoryReply:
+        req = _motion(goal, path, speed, rate_hz, via)
+        if start is not None:
+            req["start"] = _jsonable(start)
+        r = self.call(f"{robot}/plan", req)
+        return TrajectoryReply(r["path"], r["duration"], r["rate_hz"], r["joint_names"], np.array(r["times"]),
+                               np.array(r["position"]), np.array(r["velocity"]), np.array(r["acceleration"]),
+                               np.array(r["commands"], dtype=np.int64))
+
+    def move(self, robot: str, goal: object, *, path: str = "joint", speed: float = 1.0,
+             rate_hz: float | None = None, via: Sequence[object] = (), wait: bool = False,
+             wait_timeout: float | None = None) -> MoveReply:
+        """Plan from where the arm is and send it to the adapters. ``wait``: return when the
+        arm has arrived (the service's state of it says at rest at the goal)."""
+        r = self.call(f"{robot}/move", _motion(goal, path, speed, rate_hz, via))
+        reply = MoveReply(r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"])
+        if wait:
+            self.wait_until_still(robot, reply.goal, timeout=wait_timeout or reply.duration + 5.0)
+        return reply
+
+    def stop(self, robot: str) -> dict[str, Any]:
+        return self.call(f"{robot}/stop")
+
+    def wait_until_still(self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0,
+                         tolerance: float = 2e-3) -> dict[str, Any]:
+        """Poll the arm's state until it is at rest (at ``goal`` within ``tolerance`` [rad])."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        while True:
+            s = self.state(robot)
+            here = np.array(s["position"])
+            if not s["moving"] and (goal is None or np.max(np.abs(here - goal)) <= tolerance):
+                return s
+            if time.monotonic() > deadline:
+                raise NoReply(f"{robot} did not come to rest at its goal within {timeout:.1f} s")
+            time.sleep(0.05)
+
+
+def _motion(goal: object, path: str, speed: float, rate_hz: float | None, via: Sequence[object]) -> dict[str, Any]:
+    req: dict[str, Any] = {"goal": _jsonable(goal), "path": path, "speed": speed}
+    if rate_hz is not None:
+        req["rate_hz"] = rate_hz
+    if via:
+        req["via"] = [_jsonable(v) for v in via]
+    return req
+
+
+def _jsonable(x: object) -> Any:
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if hasattr(x, "__dataclass_fields__"):
+        return {k: _jsonable(getattr(x, k)) for k in x.__dataclass_fields__}
+    return x

@@ -1,0 +1,136 @@
+"""The verbs: each takes a robot and a validated request object, returns a reply object.
+
+No Zenoh here: :mod:`service.server` calls these and turns what they raise into error
+replies. Every argument is checked (unknown fields refused) before anything is solved,
+planned or published.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Callable, Mapping
+from typing import Any
+
+import planning
+import solvers
+from robots import BadRequest, Robot
+
+from .protocol import PROTOCOL_VERSION, Limits, NoAdapter, allowed, flag, number
+from .state import StateBook
+
+Publish = Callable[[Robot, dict[str, Any]], None]
+AdapterCount = Callable[[Robot], int]
+
+
+class Handlers:
+    def __init__(self, arms: Mapping[str, Robot], book: StateBook, limits: Limits,
+                 publish: Publish, adapters: AdapterCount) -> None:
+        self.arms = dict(arms)
+        self.book = book
+        self.limits = limits
+        self.publish = publish
+        self.adapters = adapters
+
+    # -- read-only verbs -------------------------------------------------------------------
+
+    def robots(self, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req)
+        arms = [{"name": a.name, "title": a.title, "joints": list(a.joint_names)} for a in self.arms.values()]
+        return {"protocol": PROTOCOL_VERSION, "robots": arms}
+
+    def info(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req)
+        known = self.book.current(arm)
+        out = arm.describe()
+        out.update({"protocol": PROTOCOL_VERSION, "adapters": self.adapters(arm),
+                    "state": {"source": known.source, "moving": known.moving, **known.state.to_dict()}})
+        return out
+
+    def fk(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req, "q")
+        if "q" not in req:
+            raise BadRequest("fk needs 'q', the joint vector [rad]", field="q")
+        q = arm.joint_vector(req["q"])
+        pose = arm.pose(q)
+        return {"q": q.tolist(), "position": pose.position.tolist(), "pitch": pose.pitch,
+                "within_limits": arm.limits.contains(q)}
+
+    def ik(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        if "targets" in req:
+            allowed(req, "targets", "approach", "seeds", "tolerance")
+            targets = req["targets"]
+            if not isinstance(targets, list):
+                raise BadRequest("targets must be a list of [x, y, z] points", field="targets")
+            if len(targets) > self.limits.max_batch:
+                raise BatchTooLarge(len(targets), self.limits.max_batch)
+            tol = number(req, "tolerance", solvers.DEFAULT_TOLERANCE)
+            assert tol is not None
+            return solvers.solve_ik_batch(arm, targets, approach=req.get("approach"), seeds=req.get("seeds"),
+                                          tolerance=tol).to_dict()
+        allowed(req, "target", "approach", "seed", "tolerance", "quantise")
+        if "target" not in req:
+            raise BadRequest("ik needs 'target' ([x, y, z] in metres, or a sensor reading), or 'targets'",
+                             field="target")
+        tol = number(req, "tolerance", solvers.DEFAULT_TOLERANCE)
+        assert tol is not None
+        return solvers.solve_ik(arm, req["target"], approach=req.get("approach"), seed=req.get("seed"),
+                                tolerance=tol, quantise=flag(req, "quantise")).to_dict()
+
+    def plan(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req, "start", "goal", "path", "speed", "rate_hz", "via")
+        traj = self._plan(arm, req, req.get("start"))
+        return traj.to_dict()
+
+    # -- verbs that move the arm --------------------------------------------------------------
+
+    def move(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req, "goal", "path", "speed", "rate_hz", "via")
+        if self.adapters(arm) == 0:
+            raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
+        known = self.book.current(arm)
+        traj = self._plan(arm, req, known.state)
+        msg = self._message(arm, traj, "move")
+        self.publish(arm, msg)
+        self.book.commanded(arm.name, traj)
+        return {"id": msg["id"], "path": traj.path, "duration": traj.duration, "samples": len(traj.times),
+                "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(), "start_source": known.source}
+
+    def stop(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        allowed(req)
+        known = self.book.current(arm)
+        traj = planning.plan_stop(arm, known.state)
+        msg = self._message(arm, traj, "stop")
+        self.publish(arm, msg)
+        self.book.commanded(arm.name, traj)
+        return {"id": msg["id"], "duration": traj.duration, "adapters": self.adapters(arm),
+                "rest": traj.position[-1].tolist()}
+
+    # -- helpers ----------------------------------------------------------------------------
+
+    def _plan(self, arm: Robot, req: Mapping[str, Any], start: object) -> planning.Trajectory:
+        if "goal" not in req:
+            raise BadRequest("a goal is needed: a joint vector, or {\"target\": [x, y, z], \"approach\": ...}",
+                             field="goal")
+        via = req.get("via", [])
+        if isinstance(via, list) and len(via) > self.limits.max_waypoints:
+            raise BadRequest(f"at most {self.limits.max_waypoints} waypoints", field="via")
+        if start is None:
+            start = self.book.current(arm).state
+        path = req.get("path", "joint")
+        speed = req.get("speed", 1.0)
+        return planning.plan(arm, start, req["goal"], path=path, speed=speed, rate_hz=req.get("rate_hz"), via=via)
+
+    @staticmethod
+    def _message(arm: Robot, traj: planning.Trajectory, kind: str) -> dict[str, Any]:
+        msg = traj.to_dict()
+        msg.update({"id": uuid.uuid4().hex, "kind": kind})
+        return msg
+
+
+class BatchTooLarge(BadRequest):
+    code = "too_large"
+
+    def __init__(self, size: int, limit: int) -> None:
+        super().__init__(f"{size} targets; this service accepts at most {limit} per request", field="targets",
+                         size=size, limit=limit)
+

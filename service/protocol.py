@@ -1,0 +1,133 @@
+"""The JSON protocol (version 1): request validation and reply shapes, independent of Zenoh.
+
+Every request is a JSON object; every reply is a JSON object. A bad request raises
+:class:`robots.BadRequest` naming the ``field``; the service turns any
+:class:`robots.ArmdError` into an error reply ``{"code", "message", ...}`` in one place.
+The full description, with a JSON Schema per verb, is ``docs/protocol.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from robots import ArmdError, BadRequest
+
+PROTOCOL_VERSION = 1
+VERBS = ("info", "fk", "ik", "plan", "move", "stop")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What the operator allows per request (defaults documented in docs/protocol.md)."""
+
+    max_payload_bytes: int = 1_000_000
+    max_batch: int = 10_000
+    max_depth: int = 8  # nesting depth of a request's JSON
+    max_waypoints: int = 100
+
+
+def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
+    """The request object from a payload (empty or absent: ``{}``); :class:`BadRequest` otherwise."""
+    if payload is None or len(payload) == 0:
+        return {}
+    if len(payload) > limits.max_payload_bytes:
+        raise PayloadTooLarge(len(payload), limits.max_payload_bytes)
+    try:
+        text = payload.decode("utf-8")
+    except UnicodeDecodeError:
+        raise BadRequest("the payload is not UTF-8 text (a JSON object is expected)", field="payload") from None
+    try:
+        obj = json.loads(text, parse_constant=_reject_constant)
+    except RecursionError:
+        raise BadRequest("the JSON is nested too deeply", field="payload") from None
+    except ValueError as e:
+        raise BadRequest(f"the payload is not valid JSON: {e}", field="payload") from None
+    if not isinstance(obj, dict):
+        raise BadRequest(f"the request must be a JSON object, got {type(obj).__name__}", field="payload")
+    if _depth(obj) > limits.max_depth:
+        raise BadRequest(f"the request is nested deeper than {limits.max_depth} levels", field="payload")
+    version = obj.get("protocol", PROTOCOL_VERSION)
+    if version != PROTOCOL_VERSION or isinstance(version, bool):
+        raise BadRequest(f"protocol version {version!r} is not spoken here; this service speaks {PROTOCOL_VERSION}",
+                         field="protocol")
+    return obj
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _depth(obj: object, level: int = 1) -> int:
+    if isinstance(obj, dict):
+        return max([level, *(_depth(v, level + 1) for v in obj.values())])
+    if isinstance(obj, list):
+        return max([level, *(_depth(v, level + 1) for v in obj)])
+    return level
+
+
+class PayloadTooLarge(ArmdError):
+    code = "too_large"
+
+    def __init__(self, size: int, limit: int) -> None:
+        super().__init__(f"the payload is {size} bytes; this service accepts at most {limit}", size=size, limit=limit)
+
+
+class UnknownVerb(ArmdError):
+    code = "unknown_verb"
+
+    def __init__(self, verb: str) -> None:
+        super().__init__(f"unknown verb {verb!r}; verbs: {', '.join(VERBS)}", verb=verb, verbs=list(VERBS))
+
+
+class NoAdapter(ArmdError):
+    code = "no_adapter"
+
+
+class Internal(ArmdError):
+    code = "internal"
+
+
+def encode(obj: Mapping[str, Any]) -> bytes:
+    """A reply as JSON bytes (NaN and infinities, which JSON lacks, become null)."""
+    return json.dumps(_finite(obj), separators=(",", ":")).encode()
+
+
+def error_reply(err: ArmdError) -> bytes:
+    return encode(err.to_dict())
+
+
+def _finite(obj: Any) -> Any:
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
+def allowed(req: Mapping[str, Any], *names: str) -> None:
+    """Refuse keys a verb does not know (a misspelt option must not be silently ignored)."""
+    extra = sorted(set(req) - set(names) - {"protocol"})
+    if extra:
+        raise BadRequest(f"unknown field {extra[0]!r}; this verb takes: {', '.join(names)}", field=extra[0])
+
+
+def number(req: Mapping[str, Any], name: str, default: float | None = None) -> float | None:
+    v = req.get(name, default)
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise BadRequest(f"{name} must be a finite number, got {v!r}", field=name)
+    return float(v)
+
+
+def flag(req: Mapping[str, Any], name: str, default: bool = False) -> bool:
+    v = req.get(name, default)
+    if not isinstance(v, bool):
+        raise BadRequest(f"{name} must be true or false, got {v!r}", field=name)
+    return v

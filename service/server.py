@@ -1,0 +1,187 @@
+"""The armd service on a Zenoh session: queryables for every verb, trajectories published,
+adapters' state and liveliness followed.
+
+Key expressions (``prefix`` = ``armd`` by default):
+
+- ``<prefix>/robots``, ``<prefix>/<robot>/{info,fk,ik,plan,move,stop}``: queryables (JSON in, JSON out);
+- ``<prefix>/<robot>/trajectory``: what ``move`` and ``stop`` publish, for the adapters;
+- ``<prefix>/<robot>/state``: adapters' reports, followed to plan from where the arm is;
+- ``<prefix>/<robot>/adapter/<id>``: adapters' liveliness tokens (``move`` needs one);
+- ``<prefix>/service/<id>``: this service's liveliness token.
+
+One queryable on ``<prefix>/**`` takes every request, so a request for an unknown robot or
+verb gets an error reply too. Requests are served on a thread pool (Zenoh's own threads
+only hand them over); every request gets exactly one reply, an error reply for anything
+that goes wrong, and an unexpected exception is logged with its traceback and answered
+``internal``: the service keeps serving.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+import zenoh
+
+from planning import JointState
+from robots import ArmdError, Robot, UnknownRobot
+
+from .handlers import Handlers
+from .protocol import VERBS, Internal, Limits, UnknownVerb, decode, encode, error_reply
+from .state import StateBook
+
+log = logging.getLogger("armd.service")
+JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+class Service:
+    """Serves ``arms`` on ``session`` until :meth:`close`."""
+
+    def __init__(self, session: zenoh.Session, arms: Mapping[str, Robot], *, prefix: str = "armd",
+                 limits: Limits | None = None, workers: int = 4) -> None:
+        self.session = session
+        self.arms = dict(arms)
+        self.prefix = prefix.rstrip("/")
+        self.id = uuid.uuid4().hex[:12]
+        self.book = StateBook()
+        self._adapters: dict[str, set[str]] = {name: set() for name in self.arms}
+        self._lock = threading.Lock()
+        self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count)
+        self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
+        self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON)
+                            for name in self.arms}
+        self._served = 0
+        self._errors = 0
+        self._entities: list[Any] = [
+            session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
+            session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
+            session.liveliness().declare_subscriber(f"{self.prefix}/*/adapter/*", self._on_adapter, history=True),
+            session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
+        ]
+        self._warm_up()
+        log.info("armd service %s serving %s under %s/", self.id, ", ".join(self.arms), self.prefix)
+
+    def _warm_up(self) -> None:
+        """Load the compiled solver code and each arm's solver state now, not on the first request."""
+        import solvers
+
+        for arm in self.arms.values():
+            solvers.solve_ik(arm, arm.fk(arm.neutral))
+
+    # -- queries ------------------------------------------------------------------------
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            self._pool.submit(self._serve, query)
+        except RuntimeError:  # the pool is shut down: the service is closing
+            query.drop()
+
+    def _serve(self, query: zenoh.Query) -> None:
+        started = time.perf_counter()
+        key = str(query.key_expr)
+        try:
+            with query:  # finalises the query when done: one reply, then the end
+                try:
+                    payload = query.payload.to_bytes() if query.payload is not None else b""
+                    reply = self._dispatch(key, payload)
+                    query.reply(query.key_expr, encode(reply), encoding=JSON)
+                    ok = True
+                except ArmdError as e:
+                    query.reply_err(error_reply(e), encoding=JSON)
+                    ok = False
+                except Exception as e:  # a bug: logged with its traceback, answered, never fatal
+                    log.exception("internal error serving %s", key)
+                    query.reply_err(error_reply(Internal(f"internal error: {type(e).__name__}: {e}")), encoding=JSON)
+                    ok = False
+        except Exception:  # the query went away (client gone, session closing)
+            log.debug("could not reply to %s", key, exc_info=True)
+            return
+        with self._lock:
+            self._served += 1
+            self._errors += not ok
+        log.debug("%s %s in %.2f ms", key, "ok" if ok else "error", (time.perf_counter() - started) * 1e3)
+
+    def _dispatch(self, key: str, payload: bytes) -> dict[str, Any]:
+        rest = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
+        parts = rest.split("/")
+        req = decode(payload, self.handlers.limits)
+        if parts == ["robots"]:
+            return self.handlers.robots(req)
+        if len(parts) != 2:
+            raise UnknownVerb(rest)
+        name, verb = parts
+        arm = self.arms.get(name)
+        if arm is None:
+            raise UnknownRobot(name, self.arms)
+        if verb not in VERBS:
+            raise UnknownVerb(verb)
+        handler = getattr(self.handlers, verb)
+        result: dict[str, Any] = handler(arm, req)
+        return result
+
+    # -- adapters ----------------------------------------------------------------------------
+
+    def _publish(self, arm: Robot, message: dict[str, Any]) -> None:
+        self._publishers[arm.name].put(encode(message))
+
+    def _adapter_count(self, arm: Robot) -> int:
+        with self._lock:
+            return len(self._adapters.get(arm.name, ()))
+
+    def _on_adapter(self, sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")
+        if len(parts) < 3:
+            return
+        robot, ident = parts[-3], parts[-1]
+        with self._lock:
+            alive = self._adapters.setdefault(robot, set())
+            if sample.kind == zenoh.SampleKind.PUT:
+                alive.add(ident)
+            else:
+                alive.discard(ident)
+        log.info("adapter %s of %s %s", ident, robot, "up" if sample.kind == zenoh.SampleKind.PUT else "gone")
+
+    def _on_state(self, sample: zenoh.Sample) -> None:
+        robot = str(sample.key_expr).split("/")[-2]
+        arm = self.arms.get(robot)
+        if arm is None:
+            return
+        try:
+            msg = json.loads(sample.payload.to_bytes())
+            q = np.asarray(msg["position"], dtype=float)
+            v = np.asarray(msg.get("velocity", np.zeros(arm.nq)), dtype=float)
+            a = np.asarray(msg.get("acceleration", np.zeros(arm.nq)), dtype=float)
+            if q.shape != (arm.nq,) or v.shape != (arm.nq,) or a.shape != (arm.nq,) \
+                    or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
+                raise ValueError("bad shape or not finite")
+        except (ValueError, KeyError, TypeError) as e:
+            log.warning("ignoring a malformed state of %s: %s", robot, e)
+            return
+        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)))
+
+    # -- life ------------------------------------------------------------------------------
+
+    def stats(self) -> dict[str, int]:
+        with self._lock:
+            return {"served": self._served, "errors": self._errors}
+
+    def close(self) -> None:
+        for entity in self._entities:
+            try:
+                entity.undeclare()
+            except Exception:  # already gone with the session
+                log.debug("undeclare failed", exc_info=True)
+        for pub in self._publishers.values():
+            try:
+                pub.undeclare()
+            except Exception:
+                log.debug("undeclare failed", exc_info=True)
+        self._pool.shutdown(wait=True, cancel_futures=True)
+        log.info("armd service %s closed: %s", self.id, self.stats())

@@ -1,0 +1,68 @@
+"""Zenoh configurations: the embedded router, a member of an existing network, a client.
+
+Multicast scouting is always off (armd never announces itself on a LAN by surprise;
+endpoints are explicit), and so is gossip.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import zenoh
+
+from robots import BadRequest
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def _quiet(conf: zenoh.Config) -> zenoh.Config:
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    return conf
+
+
+def network_config(*, listen: list[str] | None = None, connect: list[str] | None = None,
+                   config_file: str | None = None, mode: str | None = None) -> zenoh.Config:
+    """The configuration of a long-running armd process (service, adapter, router).
+
+    - ``config_file``: a Zenoh JSON5 configuration, used as it is (``listen``/``connect`` add to it).
+    - ``connect`` given: join an existing network as a client of the router(s) there (or
+      ``mode``): a router routes everything between its clients, liveliness included.
+    - otherwise: an embedded router listening on ``listen`` (default tcp/127.0.0.1:7447).
+    """
+    if config_file:
+        if not Path(config_file).is_file():
+            raise BadRequest(f"Zenoh config file {config_file} not found", field="config")
+        try:
+            conf = zenoh.Config.from_file(config_file)
+        except Exception as e:  # zenoh raises its own ZError
+            raise BadRequest(f"Zenoh cannot read {config_file}: {e}", field="config") from None
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps(connect))
+        if mode:
+            conf.insert_json5("mode", json.dumps(mode))
+        return conf
+    conf = zenoh.Config()
+    if connect:
+        conf.insert_json5("mode", json.dumps(mode or "client"))
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps(listen))
+    else:
+        conf.insert_json5("mode", json.dumps(mode or "router"))
+        conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
+        conf.insert_json5("connect/endpoints", "[]")
+    return _quiet(conf)
+
+
+def client_config(connect: list[str] | None = None, config_file: str | None = None) -> zenoh.Config:
+    """A client of the network: connects to ``connect`` (default the embedded router's endpoint)."""
+    if config_file:
+        return network_config(config_file=config_file, connect=connect)
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps(connect or [DEFAULT_ENDPOINT]))
+    return _quiet(conf)

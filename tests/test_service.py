@@ -1,0 +1,210 @@
+"""The service over real Zenoh sessions on 127.0.0.1: every verb, every error code, concurrency."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+import robots
+import solvers
+from clients import ArmClient
+from clients.sim import SimAdapter
+from tests.test_fk import random_in_limits
+
+JSON = zenoh.Encoding.APPLICATION_JSON
+
+
+def raw(client: ArmClient, key: str, payload: bytes) -> tuple[str, dict[str, object]]:
+    """Send raw bytes; ('ok' | 'err', reply object). Exactly one reply is expected."""
+    replies = list(client.session.get(f"armd/{key}", payload=payload, timeout=10.0))
+    assert len(replies) == 1, f"{len(replies)} replies"
+    r = replies[0]
+    if r.ok is not None:
+        return "ok", json.loads(r.ok.payload.to_bytes())
+    assert r.err is not None
+    return "err", json.loads(r.err.payload.to_bytes())
+
+
+def test_robots_and_info(client: ArmClient) -> None:
+    assert [r["name"] for r in client.robots()] == robots.names()
+    info = client.info("desk4")
+    assert info["coupled_limits"][0]["name"] == "linkage" and info["protocol"] == 1
+    assert info["state"]["source"] in ("neutral", "commanded", "adapter")
+
+
+def test_fk(client: ArmClient) -> None:
+    arm = robots.load("sg5ut")
+    q = [0.2, 1.0, -0.5, -0.4]
+    r = client.fk("sg5ut", q)
+    assert np.allclose(r.position, arm.fk(q), atol=1e-15) and r.within_limits
+
+
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
+def test_ik_matches_in_process(client: ArmClient, name: str) -> None:
+    arm = robots.load(name)
+    for q in random_in_limits(arm, 15, seed=50):
+        target = arm.fk(q)
+        r = client.ik(name, target.tolist())
+        local = solvers.solve_ik(arm, target)
+        assert r.status == "ok" and np.allclose(r.q, local.q, atol=1e-12)
+        assert np.linalg.norm(arm.fk(r.q) - target) < 1e-9
+
+
+def test_ik_batch_and_sensor_target(client: ArmClient) -> None:
+    arm = robots.load("insomniac")
+    pts = [arm.fk(q).tolist() for q in random_in_limits(arm, 50, seed=51)] + [[2.0, 0.0, 0.0]]
+    r = client.ik_batch("insomniac", pts)
+    assert r["status"][:-1] == ["ok"] * 50 and r["status"][-1] == "unreachable"
+    s = client.ik("insomniac", {"sensor": "et_left", "range": 0.25, "bearing": -0.3}, approach="parallel")
+    assert s.status == "ok"
+
+
+def test_plan(client: ArmClient) -> None:
+    arm = robots.load("gupta3")
+    tr = client.plan("gupta3", [0.5, 1.0, -1.2], start=[0.0, 1.2, -1.0])
+    assert np.allclose(tr.position[0], [0.0, 1.2, -1.0]) and np.allclose(tr.position[-1], [0.5, 1.0, -1.2])
+    assert np.array_equal(tr.commands, arm.actuators.commands(tr.position))
+    line = client.plan("insomniac", {"target": [0.25, 0.05, 0.25]}, path="line", start=robots.load("insomniac").neutral)
+    assert line.path == "line"
+
+
+BAD = [
+    # (key, payload, code, field)
+    ("gupta3/ik", b"{not json", "bad_request", "payload"),
+    ("gupta3/ik", b"\xff\xfe", "bad_request", "payload"),
+    ("gupta3/ik", b"[1, 2, 3]", "bad_request", "payload"),
+    ("gupta3/ik", b'{"target": [0.1, NaN, 0.1]}', "bad_request", "payload"),
+    ("gupta3/ik", b'{"target": [0.1, 0.1]}', "bad_request", "target"),
+    ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "aproach": "free"}', "bad_request", "aproach"),
+    ("gupta3/ik", b'{}', "bad_request", "target"),
+    ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "approach": "parallel"}', "bad_request", "approach"),
+    ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "protocol": 2}', "bad_request", "protocol"),
+    ("gupta3/ik", b'{"target": ' + b"[" * 50 + b"]" * 50 + b"}", "bad_request", "payload"),
+    ("gupta3/fk", b'{"q": [0, 1]}', "bad_request", "q"),
+    ("gupta3/plan", b'{"goal": [0.0, 1.0, 0.5]}', "bad_request", "goal"),
+    ("gupta3/plan", b'{"goal": {"target": [3.0, 0.0, 0.0]}}', "unreachable", "goal"),
+    ("gupta3/plan", b'{"goal": [0.5, 1.0, -1.0], "speed": 2}', "bad_request", "speed"),
+    ("gupta3/move", b'{"goal": [0.5, 1.0, -1.0]}', "no_adapter", None),
+    ("gupta4/ik", b'{"target": [0.1, 0.0, 0.1]}', "unknown_robot", None),
+    ("gupta3/dance", b"{}", "unknown_verb", None),
+    ("gupta3/ik/extra", b"{}", "unknown_verb", None),
+]
+
+
+@pytest.mark.parametrize(("key", "payload", "code", "field"), BAD)
+def test_errors(client: ArmClient, key: str, payload: bytes, code: str, field: str | None) -> None:
+    kind, reply = raw(client, key, payload)
+    assert kind == "err"
+    assert reply["code"] == code, reply
+    assert reply["message"]
+    if field is not None:
+        assert reply.get("field") == field, reply
+
+
+def test_oversized_payload_and_batch(client: ArmClient, service: object) -> None:
+    kind, reply = raw(client, "gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "pad": "' + b"x" * 1_100_000 + b'"}')
+    assert kind == "err" and reply["code"] == "too_large"
+    kind, reply = raw(client, "gupta3/ik", json.dumps({"targets": [[0.1, 0.0, 0.1]] * 10_001}).encode())
+    assert kind == "err" and reply["code"] == "too_large" and reply["field"] == "targets"
+    assert client.ik("gupta3", [0.15, 0.0, 0.1]).status == "ok"  # still serving
+
+
+def test_no_trajectory_published_for_refused_requests(client: ArmClient, router: str) -> None:
+    got: list[bytes] = []
+    sub = client.session.declare_subscriber("armd/*/trajectory", lambda s: got.append(s.payload.to_bytes()))
+    try:
+        for payload in (b'{"goal": [0.0, 1.0, 0.5]}', b"nope", b'{"goal": {"target": [3, 0, 0]}}'):
+            raw(client, "gupta3/move", payload)
+        time.sleep(0.3)
+    finally:
+        sub.undeclare()
+    assert got == []
+
+
+def test_internal_errors_are_answered_and_the_service_lives_on(client: ArmClient, service: object,
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    def broken(arm: object, req: object) -> dict[str, object]:
+        raise ZeroDivisionError("a bug")
+
+    monkeypatch.setattr(service.handlers, "fk", broken)  # type: ignore[attr-defined]
+    kind, reply = raw(client, "gupta3/fk", b'{"q": [0, 1, -1]}')
+    assert kind == "err" and reply["code"] == "internal" and "ZeroDivisionError" in str(reply["message"])
+    monkeypatch.undo()
+    assert client.fk("gupta3", [0, 1, -1]).within_limits
+
+
+def test_concurrent_clients(router: str, service: object) -> None:
+    arm = robots.load("sg5ut")
+    targets = [arm.fk(q) for q in random_in_limits(arm, 40, seed=52)]
+    expected = [solvers.solve_ik(arm, t).q for t in targets]
+    failures: list[str] = []
+
+    def worker(k: int) -> None:
+        with ArmClient(router, timeout=10.0) as c:
+            for i in range(k % 5, len(targets), 5):
+                try:
+                    r = c.ik("sg5ut", targets[i].tolist())
+                    if not np.allclose(r.q, expected[i], atol=1e-12):
+                        failures.append(f"wrong answer {i}")
+                except Exception as e:
+                    failures.append(repr(e))
+
+    threads = [threading.Thread(target=worker, args=(k,)) for k in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert failures == []
+
+
+@pytest.fixture(scope="module")
+def sim(router: str, service: object) -> Iterator[SimAdapter]:
+    from service.zconfig import network_config
+
+    session = zenoh.open(network_config(connect=[router]))
+    adapter = SimAdapter(session, robots.load("gupta3"), time_scale=5.0)
+    deadline = time.monotonic() + 5
+    while service._adapter_count(robots.load("gupta3")) == 0 and time.monotonic() < deadline:  # type: ignore[attr-defined]
+        time.sleep(0.05)
+    yield adapter
+    adapter.close()
+    session.close()
+
+
+def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
+    events: list[dict[str, object]] = []
+    sub = client.session.declare_subscriber("armd/gupta3/events",
+                                            lambda s: events.append(json.loads(s.payload.to_bytes())))
+    try:
+        goal = np.array([0.6, 1.1, -1.3])
+        r = client.move("gupta3", goal.tolist(), wait=True, wait_timeout=10)
+        assert np.allclose(sim.position, goal, atol=1e-9)
+        state = client.state("gupta3")
+        assert state["source"] == "adapter" and not state["moving"]
+        # the next move starts from where the adapter says the arm is
+        r2 = client.move("gupta3", {"target": [0.18, 0.05, 0.1]}, wait=True, wait_timeout=10)
+        assert r2.start_source == "adapter"
+        assert np.linalg.norm(robots.load("gupta3").fk(sim.position) - [0.18, 0.05, 0.1]) < 1e-6
+        time.sleep(0.2)
+    finally:
+        sub.undeclare()
+    kinds = [e["event"] for e in events if e.get("id") == r.id]
+    assert kinds[:2] == ["accepted", "started"] and "done" in kinds
+
+
+def test_stop_mid_move(client: ArmClient, sim: SimAdapter) -> None:
+    client.move("gupta3", [-0.8, 1.5, -0.6], speed=0.3)
+    time.sleep(0.3)
+    assert client.state("gupta3")["moving"]
+    stopped = client.stop("gupta3")
+    assert stopped["adapters"] == 1
+    s = client.wait_until_still("gupta3", timeout=5.0)
+    assert not np.allclose(s["position"], [-0.8, 1.5, -0.6], atol=1e-3)  # halted short of the goal
+    arm = robots.load("gupta3")
+    assert arm.limits.contains(np.array(s["position"]), tol=1e-9)
