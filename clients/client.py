@@ -101,7 +101,11 @@ class ArmClient:
     def __init__(self, connect: str | Sequence[str] | None = None, *, config: str | None = None,
                  prefix: str = "armd", timeout: float = 5.0) -> None:
         endpoints = [connect] if isinstance(connect, str) else (list(connect) if connect else None)
-        self.session = zenoh.open(client_config(endpoints, config))
+        try:
+            self.session = zenoh.open(client_config(endpoints, config))
+        except zenoh.ZError as e:
+            where = ", ".join(endpoints or ["tcp/127.0.0.1:7447"])
+            raise NoReply(f"cannot reach an armd network at {where}: is `armd serve` running? ({e})") from None
         self.prefix = prefix.rstrip("/")
         self.timeout = timeout
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def armd(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True,
                           cwd=Path(__file__).resolve().parent.parent, timeout=120)
 
 

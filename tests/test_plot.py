@@ -29,7 +29,7 @@ def test_plot_writes_a_png_with_content(tmp_path: Path) -> None:
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "service.cli", *args], capture_output=True, text=True, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True, cwd=ROOT,
                           timeout=300)
 
 

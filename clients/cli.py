@@ -1,4 +1,4 @@
-"""The ``armd`` command line.
+"""The ``armd`` command line: the top of the layers, wiring the service, the adapters and the client.
 
 ``armd catalogue`` prints the arms armd knows (the built-in catalogue, plus a user's
 ``--robots-dir``), offline, with their joints and limits.
@@ -12,6 +12,7 @@ import math
 import os
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 import robots
 from robots import ArmdError, Robot
@@ -189,6 +190,114 @@ def cmd_router(args: argparse.Namespace) -> int:
     return 0
 
 
+def _client(args: argparse.Namespace) -> object:
+    from clients.client import ArmClient
+
+    return ArmClient(args.connect, config=args.config, prefix=args.prefix, timeout=args.timeout)
+
+
+def _show(args: argparse.Namespace, reply: dict[str, Any], table: list[tuple[str, object]]) -> None:
+    if args.json:
+        print(json.dumps(reply, indent=2))
+        return
+    width = max(len(k) for k, _ in table)
+    for k, v in table:
+        if isinstance(v, float):
+            v = f"{v:.6g}"
+        elif isinstance(v, list) and v and all(isinstance(x, float) for x in v):
+            v = "[" + ", ".join(f"{x:.4f}" for x in v) + "]"
+        print(f"{k:<{width}}  {v}")
+
+
+def cmd_robots(args: argparse.Namespace) -> int:
+    with _client(args) as c:  # type: ignore[attr-defined]
+        reply = {"robots": c.robots()}
+    if args.json:
+        print(json.dumps(reply, indent=2))
+    else:
+        for r in reply["robots"]:
+            print(f"{r['name']:<12} {r['title']}  ({', '.join(r['joints'])})")
+    return 0
+
+
+def cmd_ik(args: argparse.Namespace) -> int:
+    req: dict[str, Any] = {"target": _numbers(args.xyz, "target")}
+    if args.approach is not None:
+        req["approach"] = _approach(args.approach)
+    if args.seed:
+        req["seed"] = _numbers(args.seed, "seed")
+    with _client(args) as c:  # type: ignore[attr-defined]
+        r = c.call(f"{args.robot}/ik", req)
+    _show(args, r, [("status", r["status"]), ("q [rad]", r["q"]), ("position error [m]", r["position_error"]),
+                    ("reached [m]", r["reached"]), ("pitch [rad]", r["pitch"]), ("branch", r["branch"]),
+                    ("other branches", len(r["branches"])), ("reason", r["reason"] or "")])
+    return 0 if r["status"] == "ok" else 1
+
+
+def cmd_fk(args: argparse.Namespace) -> int:
+    with _client(args) as c:  # type: ignore[attr-defined]
+        r = c.call(f"{args.robot}/fk", {"q": _numbers(args.q, "q")})
+    _show(args, r, [("position [m]", r["position"]), ("pitch [rad]", r["pitch"]),
+                    ("within limits", r["within_limits"])])
+    return 0
+
+
+def _goal(args: argparse.Namespace) -> object:
+    if (args.goal is None) == (args.target is None):
+        raise robots.BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
+    if args.goal is not None:
+        return _numbers(args.goal, "goal")
+    return {"target": _numbers(args.target, "target"), "approach": _approach(args.approach)}
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    req: dict[str, Any] = {"goal": _goal(args), "path": args.path, "speed": args.speed}
+    if args.start:
+        req["start"] = _numbers(args.start, "start")
+    with _client(args) as c:  # type: ignore[attr-defined]
+        r = c.call(f"{args.robot}/plan", req)
+    _show(args, r, [("path", r["path"]), ("duration [s]", r["duration"]), ("samples", len(r["times"])),
+                    ("rate [Hz]", r["rate_hz"]), ("end [rad]", r["position"][-1]), ("end commands", r["commands"][-1])])
+    return 0
+
+
+def cmd_move(args: argparse.Namespace) -> int:
+    with _client(args) as c:  # type: ignore[attr-defined]
+        r = c.call(f"{args.robot}/move", {"goal": _goal(args), "path": args.path, "speed": args.speed})
+        if args.wait:
+            import numpy as np
+
+            c.wait_until_still(args.robot, np.array(r["goal"]), timeout=r["duration"] + 10.0)
+    _show(args, r, [("trajectory", r["id"]), ("path", r["path"]), ("duration [s]", r["duration"]),
+                    ("goal [rad]", r["goal"]), ("planned from", r["start_source"])])
+    return 0
+
+
+def cmd_stop(args: argparse.Namespace) -> int:
+    with _client(args) as c:  # type: ignore[attr-defined]
+        r = c.call(f"{args.robot}/stop")
+    _show(args, r, [("trajectory", r["id"]), ("stops in [s]", r["duration"]), ("rest [rad]", r["rest"]),
+                    ("adapters", r["adapters"])])
+    return 0
+
+
+def _client_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="default tcp/127.0.0.1:7447")
+    p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
+    p.add_argument("--prefix", default="armd")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the service")
+    p.add_argument("--json", action="store_true", help="print the reply as JSON")
+
+
+def _motion_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("robot")
+    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
+    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
+    p.add_argument("--path", choices=["joint", "line"], default="joint")
+    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -229,6 +338,41 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="run a standalone Zenoh router (no zenohd needed)")
     _network_args(p)
     p.set_defaults(func=cmd_router)
+
+    p = sub.add_parser("robots", help="the arms a running service serves")
+    _client_args(p)
+    p.set_defaults(func=cmd_robots)
+
+    p = sub.add_parser("ik", help="inverse kinematics from the service: armd ik ROBOT X Y Z")
+    p.add_argument("robot")
+    p.add_argument("xyz", nargs=3, metavar="X/Y/Z", help="target [m] in the arm's base frame")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad]")
+    p.add_argument("--seed", nargs="+", metavar="Q", help="current joint vector [rad]")
+    _client_args(p)
+    p.set_defaults(func=cmd_ik)
+
+    p = sub.add_parser("fk", help="forward kinematics from the service: armd fk ROBOT Q...")
+    p.add_argument("robot")
+    p.add_argument("q", nargs="+", help="joint vector [rad]")
+    _client_args(p)
+    p.set_defaults(func=cmd_fk)
+
+    p = sub.add_parser("plan", help="plan a trajectory on the service (nothing moves)")
+    _motion_args(p)
+    p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector (default: where the arm is)")
+    _client_args(p)
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("move", help="move an arm (needs an adapter: hardware or --sim)")
+    _motion_args(p)
+    p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
+    _client_args(p)
+    p.set_defaults(func=cmd_move)
+
+    p = sub.add_parser("stop", help="stop an arm now")
+    p.add_argument("robot")
+    _client_args(p)
+    p.set_defaults(func=cmd_stop)
     return parser
 
 

@@ -1,0 +1,80 @@
+"""`armd serve` as a separate process (as a user runs it), called from the client and the CLI."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import robots
+from clients import ArmClient, ServiceError
+from tests.conftest import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def served() -> Iterator[str]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint, "--sim",
+                             "--time-scale", "5"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    deadline = time.monotonic() + 120
+    line = ""
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if "armd serving" in line or proc.poll() is not None:
+            break
+    assert "armd serving" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+    yield endpoint
+    proc.send_signal(signal.SIGTERM)
+    assert proc.wait(timeout=20) == 0
+
+
+def cli(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "clients.cli", *args, "--connect", endpoint], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_client_against_the_process(served: str) -> None:
+    with ArmClient(served) as c:
+        assert [r["name"] for r in c.robots()] == robots.names()
+        level = robots.load("sg5ut").fk([0.2, 1.2, -0.6, -0.6])  # a point the tool reaches level
+        r = c.ik("sg5ut", level.tolist(), approach="parallel")
+        assert r.status == "ok" and abs(r.pitch) < 1e-9
+        with pytest.raises(ServiceError) as e:
+            c.ik("sg5ut", [0.2, 0.05, float("nan")])
+        assert e.value.code == "bad_request"
+        goal = np.array([0.3, 1.2, -0.5, -0.4])
+        c.move("sg5ut", goal, wait=True, wait_timeout=15)
+        assert np.allclose(c.state("sg5ut")["position"], goal, atol=1e-6)
+
+
+def test_cli_against_the_process(served: str) -> None:
+    r = cli(served, "robots")
+    assert r.returncode == 0 and "insomniac" in r.stdout
+    r = cli(served, "ik", "gupta3", "0.2", "0.0", "0.1")
+    assert r.returncode == 0 and "ok" in r.stdout, r.stderr
+    r = cli(served, "fk", "gupta3", "0", "1", "-1", "--json")
+    assert r.returncode == 0 and '"within_limits": true' in r.stdout
+    r = cli(served, "move", "desk4", "--target", "0.25", "0.05", "0.15", "--wait")
+    assert r.returncode == 0, r.stderr
+    r = cli(served, "stop", "desk4")
+    assert r.returncode == 0 and "adapters" in r.stdout
+    r = cli(served, "ik", "gupta3", "0.2", "0.0", "nan")
+    assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
+    r = cli(served, "ik", "gupta9", "0.2", "0.0", "0.1")
+    assert r.returncode == 2 and "unknown robot" in r.stderr
+
+
+def test_cli_without_a_service() -> None:
+    r = subprocess.run([sys.executable, "-m", "clients.cli", "robots", "--connect",
+                        f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
