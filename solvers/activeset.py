@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometric import jit
+from .jit import jit
 
 FloatArray = NDArray[np.float64]
 
@@ -103,6 +103,7 @@ def solve_qp(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, C: Fl
     r = np.empty(n + m)
     sol = np.empty(n + m)
     Hx = np.empty(n)
+    newest = -1  # the constraint added last: dropped first if the active rows become dependent
     for _ in range(4 * m + 20):
         nw = 0
         for i in range(m):
@@ -128,8 +129,12 @@ def solve_qp(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, C: Fl
             r[i] = -acc
         for j in range(nw):
             r[n + j] = 0.0
-        if not _gauss(K[:size, :size], r[:size], sol[:size]):  # dependent active rows: drop the newest
-            active[w[nw - 1]] = False
+        if not _gauss(K[:size, :size], r[:size], sol[:size]):
+            if nw == 0:  # singular with no constraint to drop: H itself is; the caller damps it and retries
+                return False
+            # dependent active rows: drop the newest one (or, that done, the last in the working set)
+            active[newest if newest >= 0 and active[newest] else w[nw - 1]] = False
+            newest = -1
             continue
         pmax = 0.0
         for i in range(n):
@@ -164,4 +169,5 @@ def solve_qp(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, C: Fl
             x[j] += alpha * sol[j]
         if block >= 0:
             active[block] = True
+            newest = block
     return False

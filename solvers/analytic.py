@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .family import configs_at, formula_errors, rank_by_distance
-from .geometric import family_fk, jit
+from .geometric import family_fk
+from .jit import jit
 from .pitch import BOUNDARY_TOL, boundary_pitch, grid_pitch
 
 FloatArray = NDArray[np.float64]

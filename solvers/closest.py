@@ -17,7 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .activeset import solve_qp
-from .geometric import family_fk, jit, wrap_angle
+from .geometric import family_fk, wrap_angle
+from .jit import jit
 from .limits import limits_ok
 
 FloatArray = NDArray[np.float64]

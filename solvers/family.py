@@ -8,7 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometric import branches, family_fk, jit, wrap_into
+from .geometric import branches, family_fk, wrap_into
+from .jit import jit
 from .limits import limits_ok
 
 FloatArray = NDArray[np.float64]

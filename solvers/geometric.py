@@ -24,11 +24,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
 from robots import Robot
+
+from .jit import jit
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -39,7 +40,7 @@ REACH_EPS = 1e-12  # slack on |cos(elbow)| <= 1 for targets exactly on the works
 BRANCH_NAMES = ("front/elbow_up", "front/elbow_down", "flipped/elbow_up", "flipped/elbow_down")
 _FRONT, _FLIPPED = 0, 2  # branch id = side + (0 up | 1 down)
 
-jit = numba.njit(cache=True, nogil=True)
+
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from .geometric import jit
+from .jit import jit
 
 FloatArray = NDArray[np.float64]
 

@@ -23,7 +23,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .family import configs_at
-from .geometric import TWO_PI, jit, two_link, wrap_angle, wrap_into
+from .geometric import TWO_PI, two_link, wrap_angle, wrap_into
+from .jit import jit
 from .limits import limits_ok
 
 FloatArray = NDArray[np.float64]

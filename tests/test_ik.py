@@ -300,3 +300,20 @@ def test_result_to_dict_is_json_ready() -> None:
     d = json.loads(json.dumps(r.to_dict()))
     assert d["status"] == "ok" and len(d["q"]) == 4 and d["pitch_error"] == pytest.approx(0.0, abs=1e-9)
     assert solvers.OK == "ok"
+
+
+def test_targets_on_the_yaw_axis_do_not_crash() -> None:
+    """Regression: near the yaw axis the closest-point QP's Hessian is singular; it once wrote
+    out of bounds in compiled code and killed the process."""
+    cases = [
+        ("sg5ut", [7.744009405302617e-05, 0.0002055236077616692, -0.5092999526438997]),
+        ("insomniac", [1.7792167880040976e-05, 7.348709174289033e-05, 0.2506667112265063]),
+        ("gupta3", [0.0, 0.0, 0.5]),
+        ("desk4", [0.0, 0.0, 0.9]),
+    ]
+    for name, target in cases:
+        arm = robots.load(name)
+        r = solve_ik(arm, target)
+        assert arm.limits.contains(r.q, tol=0.0)
+        assert r.status in ("ok", "unreachable")
+        assert math.isclose(r.position_error, float(np.linalg.norm(arm.fk(r.q) - np.array(target))), abs_tol=1e-12)
