@@ -123,16 +123,22 @@ class ArmClient:
     def call(self, key: str, request: dict[str, Any] | None = None, timeout: float | None = None) -> dict[str, Any]:
         """One request to ``<prefix>/<key>``: the reply object, or :class:`ServiceError` /
         :class:`NoReply`."""
-        replies = self.session.get(f"{self.prefix}/{key}", payload=encode(request or {}), encoding=JSON,
-                                   timeout=self.timeout if timeout is None else timeout)
-        for reply in replies:
-            if reply.ok is not None:
-                out: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
-                return out
-            err = reply.err
-            assert err is not None
-            raise ServiceError(json.loads(err.payload.to_bytes()))
-        raise NoReply(f"no armd service answered {self.prefix}/{key} within {self.timeout} s")
+        payload = encode(request or {})
+        wait = self.timeout if timeout is None else timeout
+        for _attempt in range(2):  # a replica that died with the query in flight: ask once more
+            for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait):
+                if reply.ok is not None:
+                    out: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                    return out
+                err = reply.err
+                assert err is not None
+                body = err.payload.to_bytes()
+                try:
+                    obj = json.loads(body)
+                except ValueError:  # Zenoh's own error (a timeout): not a service reply
+                    break
+                raise ServiceError(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
+        raise NoReply(f"no armd service answered {self.prefix}/{key} within {wait} s")
 
     def robots(self) -> list[dict[str, Any]]:
         return list(self.call("robots")["robots"])

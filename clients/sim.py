@@ -53,7 +53,8 @@ class SimAdapter:
         self._t0 = 0.0
         self._done_sent = True
         self._state_pub = session.declare_publisher(f"{base}/state", encoding=JSON)
-        self._event_pub = session.declare_publisher(f"{base}/events", encoding=JSON)
+        self._event_pub = session.declare_publisher(f"{base}/events", encoding=JSON,
+                                                    congestion_control=zenoh.CongestionControl.BLOCK)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"sim-{robot.name}", daemon=True)
         self._thread.start()

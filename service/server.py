@@ -10,7 +10,9 @@ Key expressions (``prefix`` = ``armd`` by default):
 - ``<prefix>/service/<id>``: this service's liveliness token.
 
 One queryable on ``<prefix>/**`` takes every request, so a request for an unknown robot or
-verb gets an error reply too. Requests are served on a thread pool (Zenoh's own threads
+verb gets an error reply too. It is declared ``complete``: with several replicas on one
+network, a query (target ``BEST_MATCHING``, the default) reaches exactly one of them.
+Requests are served on a thread pool (Zenoh's own threads
 only hand them over); every request gets exactly one reply, an error reply for anything
 that goes wrong, and an unexpected exception is logged with its traceback and answered
 ``internal``: the service keeps serving.
@@ -55,7 +57,9 @@ class Service:
         self._lock = threading.Lock()
         self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
-        self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON)
+        # trajectories are never dropped under congestion (the default drops bursts)
+        self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
+                                                            congestion_control=zenoh.CongestionControl.BLOCK)
                             for name in self.arms}
         self._served = 0
         self._errors = 0
