@@ -1,0 +1,157 @@
+"""Service benchmark: IK round trips over Zenoh, next to a bare echo queryable, and throughput.
+
+Processes, all on 127.0.0.1: a Zenoh router (``armd router``), the service (``armd serve
+--connect``), an echo queryable (a bare Zenoh session that replies with the request's
+payload, the floor under any service), and the clients. Both servers are clients of the
+same router, so a request takes the same path to either.
+
+* latency: one client process alternates IK requests (targets from FK of random in-limit
+  configurations) and echo requests of the same size; p50 and p99 of each, and the ratio.
+* throughput: 4 client processes send IK requests back to back for ``--seconds``; replies
+  per second, and requests that got no reply (lost).
+
+Run: ``.venv/bin/python bench/service.py [--n 2000] [--seconds 5]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def targets(n: int, seed: int = 0) -> list[list[float]]:
+    import robots
+
+    arm = robots.load("insomniac")
+    rng = np.random.default_rng(seed)
+    qs = rng.uniform(arm.limits.lower, arm.limits.upper, size=(n, arm.nq))
+    return [arm.fk(q).tolist() for q in qs]
+
+
+def echo_server(endpoint: str, ready: mp.Event, stop: mp.Event) -> None:  # type: ignore[valid-type]
+    import zenoh
+
+    from service.zconfig import network_config
+
+    with zenoh.open(network_config(connect=[endpoint])) as session:
+        q = session.declare_queryable(
+            "bench/echo", lambda query: query.reply(query.key_expr, query.payload.to_bytes() if query.payload else b"",
+                                                    encoding=zenoh.Encoding.APPLICATION_JSON), complete=True)
+        ready.set()  # type: ignore[attr-defined]
+        stop.wait()  # type: ignore[attr-defined]
+        q.undeclare()
+
+
+def latency(endpoint: str, n: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
+    from clients import ArmClient
+
+    ts = targets(n)
+    ik_us, echo_us = [], []
+    with ArmClient(endpoint, timeout=10.0) as c:
+        for t in ts[:20]:  # warm-up
+            c.ik("insomniac", t)
+        for t in ts:
+            payload = json.dumps({"target": t}).encode()
+            t0 = time.perf_counter_ns()
+            c.ik("insomniac", t)
+            ik_us.append((time.perf_counter_ns() - t0) / 1e3)
+            t0 = time.perf_counter_ns()
+            replies = list(c.session.get("bench/echo", payload=payload, timeout=10.0))
+            echo_us.append((time.perf_counter_ns() - t0) / 1e3)
+            assert len(replies) == 1 and replies[0].ok is not None
+    out.put((ik_us, echo_us))  # type: ignore[attr-defined]
+
+
+def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
+    from clients import ArmClient, NoReply
+
+    ts = targets(500, seed)
+    done = lost = errors = 0
+    with ArmClient(endpoint, timeout=5.0) as c:
+        c.ik("insomniac", ts[0])
+        end = time.monotonic() + seconds
+        i = 0
+        while time.monotonic() < end:
+            try:
+                r = c.ik("insomniac", ts[i % len(ts)])
+                done += 1
+                errors += r.status != "ok"
+            except NoReply:
+                lost += 1
+            i += 1
+    out.put((done, lost, errors))  # type: ignore[attr-defined]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=2000, help="latency samples")
+    ap.add_argument("--seconds", type=float, default=5.0, help="throughput run length")
+    ap.add_argument("--clients", type=int, default=4)
+    args = ap.parse_args()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cli = [sys.executable, "-m", "clients.cli"]
+    router = subprocess.Popen([*cli, "router", "--listen", endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert router.stdout is not None
+    router.stdout.readline()
+    service = subprocess.Popen([*cli, "serve", "--connect", endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    assert service.stdout is not None
+    service.stdout.readline()  # "armd serving ..." once warmed up
+    ctx = mp.get_context("spawn")
+    ready, stop = ctx.Event(), ctx.Event()
+    echo = ctx.Process(target=echo_server, args=(endpoint, ready, stop))
+    echo.start()
+    ready.wait(30)
+    try:
+        q = ctx.Queue()
+        p = ctx.Process(target=latency, args=(endpoint, args.n, q))
+        p.start()
+        ik_us, echo_us = q.get(timeout=600)
+        p.join()
+        ik, ec = np.array(ik_us), np.array(echo_us)
+        print("| round trip (client process -> router -> server process) | p50 us | p99 us |")
+        print("|---|---|---|")
+        print(f"| armd ik (insomniac) | {np.median(ik):.0f} | {np.percentile(ik, 99):.0f} |")
+        print(f"| bare Zenoh echo, same payload | {np.median(ec):.0f} | {np.percentile(ec, 99):.0f} |")
+        print(f"| ratio ik / echo | {np.median(ik) / np.median(ec):.2f}x | "
+              f"{np.percentile(ik, 99) / np.percentile(ec, 99):.2f}x |")
+        q = ctx.Queue()
+        procs = [ctx.Process(target=hammer, args=(endpoint, args.seconds, k, q)) for k in range(args.clients)]
+        for pr in procs:
+            pr.start()
+        results = [q.get(timeout=args.seconds + 300) for _ in procs]
+        for pr in procs:
+            pr.join()
+        done = sum(r[0] for r in results)
+        lost = sum(r[1] for r in results)
+        errors = sum(r[2] for r in results)
+        print()
+        print(f"throughput, {args.clients} client processes, {args.seconds:g} s: "
+              f"{done / args.seconds:.0f} IK replies/s, {lost} lost, {errors} not ok")
+    finally:
+        stop.set()
+        echo.join(10)
+        service.terminate()
+        service.wait(20)
+        router.terminate()
+        router.wait(20)
+
+
+if __name__ == "__main__":
+    main()
