@@ -16,6 +16,7 @@ last commanded) and :meth:`check` (is the controller alive?).
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -68,6 +69,8 @@ class Adapter(ABC):
         self._stop = threading.Event()
         self._token: Any = None
         self._sub: Any = None
+        self._grip_sub: Any = None
+        self.gripper_opening: float | None = None
         self._thread = threading.Thread(target=self._loop, name=f"{self.kind}-{robot.name}", daemon=True)
 
     # -- to be provided by the hardware ------------------------------------------------------
@@ -92,18 +95,34 @@ class Adapter(ABC):
         """Release the hardware (close the port)."""
         return None
 
+    def grip(self, opening: float) -> None:
+        """Set the gripper opening in [0, 1] (the default: a simulated gripper just remembers it)."""
+        self.gripper_opening = opening
+
     # -- the Zenoh side ----------------------------------------------------------------------
 
     def activate(self) -> None:
         """Start: subscribe to trajectories and declare the liveliness token (call when the
         hardware is ready)."""
         self._sub = self.session.declare_subscriber(f"{self._base}/trajectory", self._on_trajectory)
+        self._grip_sub = self.session.declare_subscriber(f"{self._base}/gripper", self._on_gripper)
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
         self._thread.start()
 
     def event(self, event: str, **fields: Any) -> None:
         self._event_pub.put(encode({"event": event, "adapter": self.id, "kind": self.kind, "time": time.time(),
                                     **fields}))
+
+    def _on_gripper(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = json.loads(sample.payload.to_bytes())
+            opening = float(msg["opening"])
+            if not 0.0 <= opening <= 1.0:
+                raise ValueError(f"opening {opening} outside [0, 1]")
+            self.grip(opening)
+            self.event("gripper", id=msg.get("id"), opening=opening)
+        except (ValueError, KeyError, TypeError, ArmdError) as e:
+            self.event("rejected", reason=f"gripper command: {e}")
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
         try:
@@ -203,7 +222,7 @@ class Adapter(ABC):
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        for entity in (self._token, self._sub, self._state_pub, self._event_pub):
+        for entity in (self._token, self._sub, self._grip_sub, self._state_pub, self._event_pub):
             if entity is None:
                 continue
             try:

@@ -158,12 +158,11 @@ def cmd_adapter(args: argparse.Namespace) -> int:
     connect = args.connect or ([] if args.listen or args.config else ["tcp/127.0.0.1:7447"])
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(network_config(listen=args.listen, connect=connect or None, config_file=args.config))
-    if args.kind == "sim":
-        from clients.sim import SimAdapter
-
-        adapter = SimAdapter(session, arms[args.robot], prefix=args.prefix, time_scale=args.time_scale)
-    else:
-        raise robots.BadRequest(f"adapter kind {args.kind!r} is not available yet; kinds: sim", field="kind")
+    try:
+        adapter = _make_adapter(args, session, arms[args.robot])
+    except BaseException:
+        session.close()  # a Zenoh session left open would keep the process from exiting
+        raise
     print(f"armd {args.kind} adapter {adapter.id} driving {args.robot}; Ctrl-C to stop", flush=True)
     try:
         _wait_for_signal()
@@ -171,6 +170,22 @@ def cmd_adapter(args: argparse.Namespace) -> int:
         adapter.close()
         session.close()
     return 0
+
+
+def _make_adapter(args: argparse.Namespace, session: object, arm: Robot) -> Any:
+    if args.kind == "sim":
+        from clients.sim import SimAdapter
+
+        return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale)  # type: ignore[arg-type]
+    if not args.port:
+        raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
+    if args.kind == "ssc32":
+        from clients.ssc32 import SSC32Adapter
+
+        return SSC32Adapter(session, arm, args.port, baud=args.baud, prefix=args.prefix)  # type: ignore[arg-type]
+    from clients.grbl import GrblAdapter
+
+    return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix)  # type: ignore[arg-type]
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -328,11 +343,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("adapter", help="run a hardware adapter daemon for one arm")
-    p.add_argument("kind", choices=["sim"], help="sim: a simulated arm")
+    p.add_argument("kind", choices=["sim", "ssc32", "grbl"],
+                   help="sim: a simulated arm; ssc32: servos on an SSC-32; grbl: steppers on GRBL")
     p.add_argument("robot")
     _network_args(p)
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
+    p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl)")
+    p.add_argument("--baud", type=int, default=115200)
     p.set_defaults(func=cmd_adapter)
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (no zenohd needed)")

@@ -201,6 +201,10 @@ class ArmClient:
     def stop(self, robot: str) -> dict[str, Any]:
         return self.call(f"{robot}/stop")
 
+    def gripper(self, robot: str, opening: float) -> dict[str, Any]:
+        """Open (1) or close (0) the gripper, or anything between."""
+        return self.call(f"{robot}/gripper", {"opening": opening})
+
     def wait_until_still(self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0,
                          tolerance: float = 2e-3) -> dict[str, Any]:
         """Poll the arm's state until it is at rest (at ``goal`` within ``tolerance`` [rad])."""

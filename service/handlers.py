@@ -24,8 +24,9 @@ AdapterCount = Callable[[Robot], int]
 
 class Handlers:
     def __init__(self, arms: Mapping[str, Robot], book: StateBook, limits: Limits,
-                 publish: Publish, adapters: AdapterCount) -> None:
+                 publish: Publish, adapters: AdapterCount, publish_gripper: Publish | None = None) -> None:
         self.arms = dict(arms)
+        self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
         self.book = book
         self.limits = limits
         self.publish = publish
@@ -104,6 +105,20 @@ class Handlers:
         self.book.commanded(arm.name, traj)
         return {"id": msg["id"], "duration": traj.duration, "adapters": self.adapters(arm),
                 "rest": traj.position[-1].tolist()}
+
+    def gripper(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+        """Open (1) or close (0) the gripper, or anything between: published to the adapters."""
+        allowed(req, "opening")
+        if arm.gripper is None:
+            raise BadRequest(f"{arm.name} has no gripper", field="opening")
+        opening = number(req, "opening")
+        if opening is None:
+            raise BadRequest("gripper needs 'opening', from 0 (closed) to 1 (open)", field="opening")
+        pulse = arm.gripper.pulse(opening)  # validates the range
+        if self.adapters(arm) == 0:
+            raise NoAdapter(f"no adapter drives {arm.name}: nothing would move the gripper", robot=arm.name)
+        self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": uuid.uuid4().hex})
+        return {"opening": opening, "pulse": pulse}
 
     # -- helpers ----------------------------------------------------------------------------
 

@@ -17,7 +17,7 @@ from typing import Any
 from robots import ArmdError, BadRequest
 
 PROTOCOL_VERSION = 1
-VERBS = ("info", "fk", "ik", "plan", "move", "stop")
+VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper")
 
 
 @dataclass(frozen=True)

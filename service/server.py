@@ -3,8 +3,9 @@ adapters' state and liveliness followed.
 
 Key expressions (``prefix`` = ``armd`` by default):
 
-- ``<prefix>/robots``, ``<prefix>/<robot>/{info,fk,ik,plan,move,stop}``: queryables (JSON in, JSON out);
+- ``<prefix>/robots``, ``<prefix>/<robot>/{info,fk,ik,plan,move,stop,gripper}``: queryables (JSON in, JSON out);
 - ``<prefix>/<robot>/trajectory``: what ``move`` and ``stop`` publish, for the adapters;
+- ``<prefix>/<robot>/gripper``: what ``gripper`` publishes, for the adapters;
 - ``<prefix>/<robot>/state``: adapters' reports, followed to plan from where the arm is;
 - ``<prefix>/<robot>/adapter/<id>``: adapters' liveliness tokens (``move`` needs one);
 - ``<prefix>/service/<id>``: this service's liveliness token.
@@ -55,7 +56,8 @@ class Service:
         self.book = StateBook()
         self._adapters: dict[str, set[str]] = {name: set() for name in self.arms}
         self._lock = threading.Lock()
-        self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count)
+        self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
+                                 self._publish_gripper)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
@@ -134,6 +136,10 @@ class Service:
 
     def _publish(self, arm: Robot, message: dict[str, Any]) -> None:
         self._publishers[arm.name].put(encode(message))
+
+    def _publish_gripper(self, arm: Robot, message: dict[str, Any]) -> None:
+        self.session.put(f"{self.prefix}/{arm.name}/gripper", encode(message), encoding=JSON,
+                         congestion_control=zenoh.CongestionControl.BLOCK)
 
     def _adapter_count(self, arm: Robot) -> int:
         with self._lock:

@@ -13,7 +13,7 @@ import zenoh
 
 import robots
 import solvers
-from clients import ArmClient
+from clients import ArmClient, ServiceError
 from clients.sim import SimAdapter
 from tests.test_fk import random_in_limits
 
@@ -196,6 +196,19 @@ def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
         sub.undeclare()
     kinds = [e["event"] for e in events if e.get("id") == r.id]
     assert kinds[:2] == ["accepted", "started"] and "done" in kinds
+
+
+def test_gripper(client: ArmClient, sim: SimAdapter) -> None:
+    with pytest.raises(ServiceError) as e:
+        client.gripper("gupta3", 0.5)
+    assert e.value.code == "bad_request"  # the gupta3 has no gripper
+    with pytest.raises(ServiceError) as e:
+        client.gripper("insomniac", 0.5)
+    assert e.value.code == "no_adapter"
+    for bad in (1.5, -0.1):
+        with pytest.raises(ServiceError) as e:
+            client.gripper("insomniac", bad)
+        assert e.value.code in ("bad_request", "no_adapter")
 
 
 def test_stop_mid_move(client: ArmClient, sim: SimAdapter) -> None:
