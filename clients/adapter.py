@@ -110,8 +110,11 @@ class Adapter(ABC):
         self._thread.start()
 
     def event(self, event: str, **fields: Any) -> None:
-        self._event_pub.put(encode({"event": event, "adapter": self.id, "kind": self.kind, "time": time.time(),
-                                    **fields}))
+        try:
+            self._event_pub.put(encode({"event": event, "adapter": self.id, "kind": self.kind, "time": time.time(),
+                                        **fields}))
+        except zenoh.ZError:  # the session is gone (the process is ending)
+            log.debug("event %s not published", event, exc_info=True)
 
     def _on_gripper(self, sample: zenoh.Sample) -> None:
         try:
@@ -210,13 +213,17 @@ class Adapter(ABC):
             return
         moving = cmd is not None and not finished and not self.fault
         zeros = np.zeros(self.robot.nq)
-        self._state_pub.put(encode({
+        message = encode({
             "robot": self.robot.name, "adapter": self.id, "kind": self.kind,
             "position": s.position.tolist(),
             "velocity": (s.velocity if moving else zeros).tolist(),
             "acceleration": (s.acceleration if moving else zeros).tolist(),
             "moving": moving, "trajectory": None if cmd is None else cmd.id, "fault": self.fault,
-            "time": time.time()}))
+            "time": time.time()})
+        try:
+            self._state_pub.put(message)
+        except zenoh.ZError:  # the session is gone: nobody to tell
+            self._stop.set()
 
     def close(self) -> None:
         self._stop.set()

@@ -1,0 +1,2 @@
+"""Emulators of robot controllers, speaking their real serial protocols over a pseudo-terminal:
+test tools, for running adapters without hardware."""

@@ -1,0 +1,159 @@
+"""Service + adapters + controller emulators on pseudo-terminals: the code path a user's
+/dev/ttyUSB0 takes, end to end, and the faults."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+import robots
+from clients import ArmClient, ServiceError
+from clients.emulators.ssc32 import SSC32Emulator
+from clients.ssc32 import SSC32Adapter
+from service.zconfig import network_config
+
+
+@pytest.fixture
+def adapter_session(router: str) -> Iterator[zenoh.Session]:
+    session = zenoh.open(network_config(connect=[router]))
+    yield session
+    session.close()
+
+
+def wait_for(predicate: object, timeout: float = 10.0, what: str = "") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def collect(client: ArmClient, key: str) -> tuple[list[dict[str, object]], object]:
+    got: list[dict[str, object]] = []
+    lock = threading.Lock()
+
+    def on(sample: zenoh.Sample) -> None:
+        with lock:
+            got.append(json.loads(sample.payload.to_bytes()))
+
+    return got, client.session.declare_subscriber(key, on)
+
+
+def ssc32_joints(arm: robots.Robot, emu: SSC32Emulator) -> np.ndarray:
+    pulses = np.array([emu.pulse(a.channel) for a in arm.actuators.actuators])  # type: ignore[union-attr]
+    return arm.actuators.joints_from_commands(pulses)
+
+
+def test_ssc32_move_end_to_end(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    arm = robots.load("insomniac")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.2)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            states, sub = collect(client, "armd/insomniac/state")
+            target = [0.24, 0.06, 0.10]
+            r = client.move("insomniac", {"target": target, "approach": "perpendicular"}, wait=True, wait_timeout=15)
+            time.sleep(0.3)
+            sub.undeclare()  # type: ignore[attr-defined]
+            q = ssc32_joints(arm, emu)
+            assert np.linalg.norm(arm.fk(q) - target) < 1e-3  # within 1 mm, through the real pulses
+            assert emu.out_of_range == []  # no pulse ever left its channel's range
+            for move in emu.history:
+                for ch, pw in move.pulses.items():
+                    assert 500 <= pw <= 2500, (ch, pw)
+            moving = [s for s in states if s["moving"]]
+            assert len(moving) >= 0.6 * 20 * r.duration  # the state stream followed it at >= 20 Hz
+            for s in moving:
+                assert arm.limits.contains(np.array(s["position"]), tol=1e-9)
+        finally:
+            adapter.close()
+
+
+def test_ssc32_controller_stops_answering(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    arm = robots.load("sg5ut")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1, check_period=0.2)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            events, sub = collect(client, "armd/sg5ut/events")
+            emu.responding = False
+            wait_for(lambda: any(e["event"] == "fault" for e in events), timeout=5, what="a fault event")
+            wait_for(lambda: service._adapter_count(arm) == 0, timeout=5, what="the token withdrawn")  # type: ignore[attr-defined]
+            with pytest.raises(ServiceError) as e:
+                client.move("sg5ut", [0.2, 1.2, -0.6, -0.6])
+            assert e.value.code == "no_adapter"
+            emu.responding = True
+            wait_for(lambda: service._adapter_count(arm) == 1, timeout=5, what="recovery")  # type: ignore[attr-defined]
+            sub.undeclare()  # type: ignore[attr-defined]
+        finally:
+            adapter.close()
+
+
+def test_a_trajectory_with_one_bad_sample_is_rejected_whole(client: ArmClient, service: object,
+                                                            adapter_session: zenoh.Session) -> None:
+    arm = robots.load("insomniac")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            traj = client.plan("insomniac", [0.3, 1.2, -1.0, -0.5, 0.0], start=arm.neutral)
+            msg = {"robot": "insomniac", "id": "bad", "kind": "move", "rate_hz": traj.rate_hz,
+                   "times": traj.times.tolist(), "position": traj.position.tolist(),
+                   "velocity": traj.velocity.tolist(), "acceleration": traj.acceleration.tolist()}
+            msg["position"][len(traj.times) // 2][0] = 2.0  # base_yaw past its +pi/2 limit, one sample
+            events, sub = collect(client, "armd/insomniac/events")
+            before = len(emu.history)
+            client.session.put("armd/insomniac/trajectory", json.dumps(msg))
+            wait_for(lambda: any(e["event"] == "rejected" for e in events), timeout=5, what="a rejection")
+            time.sleep(0.3)
+            assert len(emu.history) == before  # nothing of it reached the wire
+            rejected = next(e for e in events if e["event"] == "rejected")
+            assert "base_yaw" in str(rejected["reason"])
+            sub.undeclare()  # type: ignore[attr-defined]
+        finally:
+            adapter.close()
+
+
+def test_stop_mid_move_halts(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    arm = robots.load("insomniac")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            goal = np.array([1.2, 2.0, -1.8, 1.0, 1.0])
+            client.move("insomniac", goal.tolist(), speed=0.3)
+            time.sleep(0.5)
+            stopped = client.stop("insomniac")
+            time.sleep(stopped["duration"] + 0.3)
+            sent = len(emu.history)
+            time.sleep(0.3)
+            assert len(emu.history) == sent  # nothing more is sent once stopped
+            q = ssc32_joints(arm, emu)
+            assert np.max(np.abs(q - goal)) > 0.1  # halted short of the goal
+            assert not emu.moving()
+        finally:
+            adapter.close()
+
+
+def test_adapter_killed_mid_move_then_no_adapter(client: ArmClient, service: object, router: str) -> None:
+    arm = robots.load("sg5ut")
+    session = zenoh.open(network_config(connect=[router]))
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(session, arm, emu.port, home_time=0.1)
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+        client.move("sg5ut", [0.6, 1.0, -0.3, -0.4], speed=0.3)
+        time.sleep(0.2)
+        session.close()  # the adapter's process goes away: its session (and token) with it
+        wait_for(lambda: service._adapter_count(arm) == 0, timeout=5, what="the token gone")  # type: ignore[attr-defined]
+        with pytest.raises(ServiceError) as e:
+            client.move("sg5ut", [0.2, 1.2, -0.6, -0.6])
+        assert e.value.code == "no_adapter"
+        adapter._stop.set()  # the thread of the dead process
+        adapter.shutdown()
+
+
