@@ -25,6 +25,7 @@ from abc import ABC, abstractmethod
 from typing import Any
 
 import numpy as np
+import serial
 import zenoh
 
 from planning import JointState
@@ -41,6 +42,14 @@ class ControllerFault(ArmdError):
     """The controller stopped answering, or reported an error or alarm."""
 
     code = "fault"
+
+
+def open_port(port: str, baud: int, timeout: float, write_timeout: float) -> serial.SerialBase:
+    """A serial port or pyserial URL, opened; :class:`ControllerFault` naming it if it cannot be."""
+    try:
+        return serial.serial_for_url(port, baudrate=baud, timeout=timeout, write_timeout=write_timeout)
+    except (serial.SerialException, ValueError) as e:
+        raise ControllerFault(f"cannot open {port}: {e}") from None
 
 
 class Adapter(ABC):

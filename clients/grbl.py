@@ -36,7 +36,7 @@ import zenoh
 from planning import JointState
 from robots import BadRequest, Robot, Stepper
 
-from .adapter import Adapter, ControllerFault
+from .adapter import Adapter, ControllerFault, open_port
 from .trajectory_message import Command
 
 log = logging.getLogger("armd.grbl")
@@ -63,10 +63,7 @@ class GrblAdapter(Adapter):
         self.port = port
         self.timeout = timeout
         self._io = threading.Lock()
-        try:
-            self.serial = serial.serial_for_url(port, baudrate=baud, timeout=0.02, write_timeout=timeout)
-        except (serial.SerialException, ValueError) as e:
-            raise ControllerFault(f"cannot open {port}: {e}") from None
+        self.serial = open_port(port, baud, 0.02, timeout)
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)
         self._buffer = b""
         self._trouble: str | None = None

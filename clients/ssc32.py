@@ -30,7 +30,7 @@ import zenoh
 from planning import JointState
 from robots import BadRequest, Robot, Servo
 
-from .adapter import Adapter, ControllerFault
+from .adapter import Adapter, ControllerFault, open_port
 from .trajectory_message import Command
 
 log = logging.getLogger("armd.ssc32")
@@ -49,10 +49,7 @@ class SSC32Adapter(Adapter):
         self.channels = [a.channel for a in acts if isinstance(a, Servo)]
         self.port = port
         self._io = threading.Lock()  # the control loop and gripper requests share the port
-        try:
-            self.serial = serial.serial_for_url(port, baudrate=baud, timeout=timeout, write_timeout=timeout)
-        except (serial.SerialException, ValueError) as e:
-            raise ControllerFault(f"cannot open {port}: {e}") from None
+        self.serial = open_port(port, baud, timeout, timeout)
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)
         self.version = self._ask(b"VER\r", until=b"\r").decode(errors="replace").strip()
         if not self.version:
