@@ -12,7 +12,8 @@ joints' limits, so GRBL's own planner never changes the timing armd planned), ch
 with the arm at q = 0 (or home it there).
 
 A trajectory is streamed as one ``G1`` segment per sample, each to that sample's position
-in whole micro-steps at the feed rate that takes one period, with character-counting flow
+in whole micro-steps at the feed rate that takes one period (samples with no whole step to
+make are folded into the next segment), with character-counting flow
 control: the bytes of unacknowledged lines never exceed GRBL's 128-byte receive buffer.
 ``error:N`` or ``ALARM:N`` aborts the trajectory (feed hold, then a reset to flush GRBL's
 buffer) and is reported. A newer trajectory (a stop, say) replaces the running one the same
@@ -43,7 +44,7 @@ log = logging.getLogger("armd.grbl")
 
 RX_BUFFER = 128  # [bytes] GRBL's serial receive buffer
 AXES = "XYZABC"
-_STATUS = re.compile(r"<([A-Za-z]+)(?::\d)?\|MPos:([-\d.,]+)")
+_STATUS = re.compile(r"<([A-Za-z]+(?::\d)?)\|MPos:([-\d.,]+)")  # state with its sub-state: Hold:0
 
 
 class GrblAdapter(Adapter):
@@ -186,7 +187,7 @@ class GrblAdapter(Adapter):
         deadline = time.monotonic() + 5.0
         while time.monotonic() < deadline:
             self._poll_status(wait=True)
-            if self._state in ("Hold", "Idle", "Alarm"):
+            if self._state in ("Hold:0", "Idle", "Alarm"):  # not Hold:1: a reset while decelerating alarms
                 break
             time.sleep(0.01)
         self._write(b"\x18")
@@ -223,17 +224,19 @@ class GrblAdapter(Adapter):
         dt = 1.0 / cmd.rate_hz
         out = []
         prev = cmd.commands[0]
+        elapsed = 0.0
         for k in range(1, len(cmd.times)):
             steps = cmd.commands[k]
+            elapsed += dt
             if np.array_equal(steps, prev):
-                out.append(f"G4P{dt:.3f}\n".encode())  # the arm holds still for a period
-                continue
+                continue  # no whole step to make: the next segment takes the time too (a G4 would drain GRBL)
             deg = [s / a.steps_per_degree for s, a in zip(steps.tolist(), self.steppers, strict=True)]
             prev_deg = [s / a.steps_per_degree for s, a in zip(prev.tolist(), self.steppers, strict=True)]
             dist = math.dist(deg, prev_deg)
             words = "".join(f"{ax}{d:.4f}" for ax, d in zip(self.axes, deg, strict=True))
-            out.append(f"G1{words}F{max(dist / dt * 60.0, 1.0):.2f}\n".encode())
+            out.append(f"G1{words}F{max(dist / elapsed * 60.0, 1.0):.2f}\n".encode())
             prev = steps
+            elapsed = 0.0
         return out
 
     def hold(self) -> None:

@@ -74,3 +74,39 @@ def client(router: str, service: object) -> Iterator[object]:
 
     with ArmClient(router, timeout=10.0) as c:
         yield c
+
+
+# -- adapters: a session of their own on the router, and waiting for what they do ----------------
+
+import json  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+
+
+@pytest.fixture
+def adapter_session(router: str) -> Iterator[zenoh.Session]:
+    from service.zconfig import network_config
+
+    session = zenoh.open(network_config(connect=[router]))
+    yield session
+    session.close()
+
+
+def wait_for(predicate: object, timeout: float = 10.0, what: str = "") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():  # type: ignore[operator]
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def collect(client: object, key: str) -> tuple[list[dict[str, object]], object]:
+    got: list[dict[str, object]] = []
+    lock = threading.Lock()
+
+    def on(sample: zenoh.Sample) -> None:
+        with lock:
+            got.append(json.loads(sample.payload.to_bytes()))
+
+    return got, client.session.declare_subscriber(key, on)  # type: ignore[attr-defined]
+
+

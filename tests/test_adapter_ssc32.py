@@ -4,9 +4,7 @@
 from __future__ import annotations
 
 import json
-import threading
 import time
-from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -17,31 +15,7 @@ from clients import ArmClient, ServiceError
 from clients.emulators.ssc32 import SSC32Emulator
 from clients.ssc32 import SSC32Adapter
 from service.zconfig import network_config
-
-
-@pytest.fixture
-def adapter_session(router: str) -> Iterator[zenoh.Session]:
-    session = zenoh.open(network_config(connect=[router]))
-    yield session
-    session.close()
-
-
-def wait_for(predicate: object, timeout: float = 10.0, what: str = "") -> None:
-    deadline = time.monotonic() + timeout
-    while not predicate():  # type: ignore[operator]
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-
-
-def collect(client: ArmClient, key: str) -> tuple[list[dict[str, object]], object]:
-    got: list[dict[str, object]] = []
-    lock = threading.Lock()
-
-    def on(sample: zenoh.Sample) -> None:
-        with lock:
-            got.append(json.loads(sample.payload.to_bytes()))
-
-    return got, client.session.declare_subscriber(key, on)
+from tests.conftest import collect, wait_for
 
 
 def ssc32_joints(arm: robots.Robot, emu: SSC32Emulator) -> np.ndarray:

@@ -23,28 +23,31 @@ Covered (gnea/grbl wiki: "Grbl v1.1 Interface", "Commands", "Configuration"):
   then dwells, then answers), ``G90``/``G91``, ``G20``/``G21``, ``G53``, ``N``, ``M3``/``M4``/``M5`` with
   ``S`` and ``M8``/``M9`` (which, outside laser mode, also wait for the planner to empty, like GRBL),
   and the no-op modes ``G17``-``G19``, ``G40``, ``G49``, ``G54``-``G59`` (all offsets zero), ``G61``,
-  ``G80``, ``G94``. Errors: 1, 2, 4, 9, 11, 20-23, 25, 27, 28, 30, 31, 36, as GRBL numbers them.
-- ``$`` help, ``$$`` (every setting, ``$100=250.000`` style), ``$N=value`` (errors 2, 3, 4, 6, 8, 10,
-  12), ``$X`` (``[MSG:Caution: Unlocked]``), ``$G``, ``$I``, ``$H`` (``error:5`` unless ``$22=1``).
+  ``G80``, ``G94`` (``M7`` is ``error:20``, as in GRBL's default build). Errors: 1, 2, 4, 9, 11, 20-23,
+  25, 27, 28, 30, 31, 36, 38, as GRBL numbers them.
+- ``$`` help, ``$$`` (every setting, ``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8,
+  10, 12), ``$X`` (``[MSG:Caution: Unlocked]``), ``$G``, ``$I``, ``$H`` (``error:5`` unless ``$22=1``).
 - Real-time bytes, taken out of the stream wherever they come: ``?`` a status report
   (``<Idle|MPos:0.000,0.000,0.000|FS:0,0>``, ``Bf:`` with ``$10=2`` or 3, ``WPos:`` with ``$10=0``,
   ``WCO:`` and ``Ov:`` at GRBL's intervals), ``!`` feed hold (decelerates at ``$12x``: ``Hold:1``,
   then ``Hold:0``), ``~`` resume (ignored during ``Hold:1``, as GRBL does), ``0x18`` soft reset (empties
-  the buffers, keeps the position, prints the welcome; in motion or ``Hold:1`` it first raises
-  ``ALARM:3`` and stays in Alarm until ``$X``). Bytes 0x80-0xFF (overrides) are dropped.
+  the buffers, keeps the position, prints the welcome; in motion or ``Hold:1``, not ``Hold:0``, it
+  first raises ``ALARM:3`` and stays in Alarm until ``$X``). Bytes 0x80-0xFF (overrides) are dropped.
 - Machine position is kept in whole steps, as GRBL does: each target is rounded to steps with
   ``$10x``, and ``position()`` is ``steps() / $10x``.
-- Test hooks: ``inject_alarm(code)`` (motion stops, the planner is emptied, ``ALARM:<code>``; for 1
-  and 2, hard and soft limits, also ``[MSG:Reset to continue]`` and nothing is read until a reset),
+- Test hooks: ``inject_alarm(code)`` (motion stops, the planner is emptied, ``ALARM:<code>``, a line
+  waiting for planner room is answered ``error:9``; for 1 and 2, hard and soft limits, also
+  ``[MSG:Reset to continue]`` and nothing is read, nor answered, until a reset),
   ``inject_error_on_next_line(code)``, and ``responding = False`` (silent: reads and drops all).
 
 Where real GRBL differs, or may:
 
-- No acceleration planning: each block runs at its constant rate from the start, with corners
-  taken at full speed; only a feed hold decelerates. A real move takes longer, by about
-  ``rate / acceleration`` per start and stop.
+- No acceleration planning: each block runs at its constant rate from the start, corners are
+  taken at full speed, and a resume restarts at full speed; only a feed hold decelerates. A real
+  move takes longer, by about ``v / (2 a)`` per start and per stop (v [units/s], a = ``$12x``).
+  Neither is the real step timing emulated: steps are interpolated linearly along each block.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G10``, ``G28``/``G30``,
-  ``G38.x`` probing, ``G43.1``, ``G92``, ``G93``, ``G91.1``, ``M0``/``M1``/``M2``/``M30``, ``M7``, jogging
+  ``G38.x`` probing, ``G43.1``, ``G92``, ``G93``, ``G91.1``, ``M0``/``M1``/``M2``/``M30``, jogging
   ``$J=``, ``$#``, ``$N``, ``$C``, ``$RST=``, ``$SLP``, ``$I=``. No overrides, limit switches, soft limits,
   probe, door or spindle; ``$13`` (inches) does not change reports. ``$H`` homes at once, without moving.
 - GRBL answers a status request within 5-20 ms and drops a ``?`` that comes before the previous
@@ -52,7 +55,8 @@ Where real GRBL differs, or may:
 - A real alarm is often accompanied by a reset (hard limit, homing failures) that prints the
   welcome; ``inject_alarm`` does not (reset yourself, as a host must anyway after 1 and 2).
 - The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them.
-- Linux pseudo-terminals (the port's open and close are seen as the master's hang-up clearing).
+- Linux pseudo-terminals: the port's open and close are seen as the master's hang-up clearing and
+  setting, polled every 2 ms; a close and reopen quicker than that goes unseen (no reset, no welcome).
 """
 
 from __future__ import annotations
@@ -206,13 +210,13 @@ class GrblEmulator:
         """The machine position now, per axis [units]: ``steps() / $10x``."""
         with self._lock:
             self._advance()
-            return {a: s / (self._spu(i) or 1.0) for i, (a, s) in enumerate(zip(self.axes, self._steps_now()))}
+            return dict(zip(self.axes, self._units(self._steps_now()), strict=True))
 
     def steps(self) -> dict[str, int]:
         """The machine position now, per axis [steps]: ``round(position * $10x)``."""
         with self._lock:
             self._advance()
-            return dict(zip(self.axes, self._steps_now()))
+            return dict(zip(self.axes, self._steps_now(), strict=True))
 
     @property
     def state(self) -> str:
@@ -225,7 +229,7 @@ class GrblEmulator:
         """Raise ``ALARM:<code>``: motion stops, the planner empties, G-code is locked until ``$X``."""
         with self._lock:
             self._advance()
-            if self._waiting or self._dwell_left is not None:
+            if (self._waiting or self._dwell_left is not None) and code not in (1, 2):
                 self._reply(9)  # the line the parser was waiting with is dropped with the planner
             self._abort_motion()
             self._alarm = True
@@ -251,7 +255,6 @@ class GrblEmulator:
         self._last = self._clock()
         self._alarm = self.settings[22] != 0  # with homing enabled, GRBL starts locked
         self._reset_parser()
-        self._steps_done = [0] * len(self.axes)
         self._gc_pos = [0.0] * len(self.axes)
 
     def _reset_parser(self) -> None:
@@ -272,6 +275,10 @@ class GrblEmulator:
         """Axis i's steps per unit ($100+i)."""
         return self.settings[100 + i]
 
+    def _units(self, steps: list[int]) -> list[float]:
+        """Steps to units, per axis (0 steps/unit counts as 1)."""
+        return [s / (self._spu(i) or 1.0) for i, s in enumerate(steps)]
+
     def _state(self) -> str:
         if self._alarm:
             return "Alarm"
@@ -284,7 +291,7 @@ class GrblEmulator:
             return list(self._steps_done)
         b = self._blocks[0]
         f = min(self._s / b.length, 1.0)
-        return [s + int(f * (t - s)) for s, t in zip(self._steps_done, b.target)]
+        return [s + int(f * (t - s)) for s, t in zip(self._steps_done, b.target, strict=True)]
 
     def _rate_now(self) -> float:
         """The current feed rate [units/min]."""
@@ -305,6 +312,7 @@ class GrblEmulator:
             t_end = (b.length - self._s) / (b.rate / 60.0)
             if dt < t_end:
                 self._s += b.rate / 60.0 * dt
+                dt = 0.0
                 break
             dt -= t_end
             self._finish_block()
@@ -343,11 +351,11 @@ class GrblEmulator:
         self._blocks.clear()
         self._s, self._v, self._hold = 0.0, 0.0, 0
         self._waiting, self._dwell_left = None, None
-        self._gc_pos = [s / (self._spu(i) or 1.0) for i, s in enumerate(self._steps_done)]
+        self._gc_pos = self._units(self._steps_done)
 
     def _queue_move(self, target: list[int], rate: float) -> None:
         start = self._blocks[-1].target if self._blocks else self._steps_done
-        delta = [(t - s) / (self._spu(i) or 1.0) for i, (s, t) in enumerate(zip(start, target))]
+        delta = [(t - s) / (self._spu(i) or 1.0) for i, (s, t) in enumerate(zip(start, target, strict=True))]
         length = math.sqrt(sum(d * d for d in delta))
         if length == 0.0:
             return  # GRBL drops a block that makes no step
@@ -384,8 +392,8 @@ class GrblEmulator:
                 if self._boot_until is not None and time.monotonic() >= self._boot_until:
                     self._boot_until = None
                     self._welcome()
-                self._receive(data)
                 self._service()
+                self._receive(data)
                 if not connected:
                     self._tx.clear()
                 elif self._tx:
@@ -398,7 +406,6 @@ class GrblEmulator:
         """Bytes from the host: real-time ones act now, the rest go through the receive buffer."""
         if not self.responding or self._boot_until is not None:
             return
-        self._service()
         for c in data:
             if c == _RESET:
                 self._soft_reset()
@@ -407,6 +414,7 @@ class GrblEmulator:
             elif c == _HOLD:
                 self._feed_hold()
             elif c == _RESUME:
+                self._advance()
                 if self._hold == 2 and not self._alarm:
                     self._hold = 0
             elif c < 0x80:
@@ -420,6 +428,11 @@ class GrblEmulator:
     def _service(self) -> None:
         """Run the machine to now; finish the line the parser waits with; read on if it can."""
         self._advance()
+        self._unblock()
+        self._read_lines()
+
+    def _unblock(self) -> None:
+        """Finish the line the parser waits with, if the machine has made room or synced."""
         if self._dwell_left is not None and self._dwell_left <= 0.0 and not self._blocks:
             self._dwell_left = None
             if self._waiting is None:
@@ -428,7 +441,6 @@ class GrblEmulator:
             self._queue_move(*self._waiting)
             self._waiting = None
             self._reply(0)
-        self._read_lines()
 
     def _read_lines(self) -> None:
         """GRBL's protocol loop: take characters from the receive buffer while the parser is free."""
@@ -472,7 +484,7 @@ class GrblEmulator:
             if status is not None:
                 self._reply(status)
             else:
-                self._service()  # the line may go through at once
+                self._unblock()  # the line may go through at once
 
     def _send(self, text: str) -> None:
         if self.responding:
@@ -514,11 +526,11 @@ class GrblEmulator:
         if state == "Hold":
             state += ":0" if self._hold == 2 else ":1"
         zeros = ",".join("0.000" for _ in self.axes)
-        pos = ",".join(f"{s / (self._spu(i) or 1.0) + 0.0:.3f}" for i, s in enumerate(self._steps_now()))
+        pos = ",".join(f"{u + 0.0:.3f}" for u in self._units(self._steps_now()))  # + 0.0: no "-0.000"
         fields = [state, f"{'MPos' if mask & 1 else 'WPos'}:{pos}"]
         if mask & 2:
             fields.append(f"Bf:{self.planner_blocks - len(self._blocks)},{self.rx_buffer - len(self._rx)}")
-        speed = self._modal.speed if self._modal.spindle != 5 else 0.0
+        speed = min(max(self._modal.speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
         fields.append(f"FS:{self._rate_now():.0f},{speed:.0f}")
         if self._wco_count > 0:
             self._wco_count -= 1
@@ -545,7 +557,7 @@ class GrblEmulator:
         if not cmd:
             self._send("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]")
             return 0
-        if cmd[0] in "$GXC" and len(cmd) > 1:
+        if cmd[0] in "$GX" and len(cmd) > 1:
             return 3
         if cmd == "$":
             if state in ("Run", "Hold"):
@@ -555,9 +567,10 @@ class GrblEmulator:
                 self._send(f"${n}={v:.0f}" if n in _INTEGERS or n in (30, 31) else f"${n}={v:.3f}")
             return 0
         if cmd == "G":
-            m = self._modal
-            self._send(f"[GC:G{m.motion} G54 G17 G{20 if m.inches else 21} G{90 if m.absolute else 91} G94 "
-                       f"M{m.spindle} M{m.coolant} T{m.tool} F{m.feed / (25.4 if m.inches else 1):.0f} S{m.speed:.0f}]")
+            mod = self._modal
+            self._send(f"[GC:G{mod.motion} G54 G17 G{20 if mod.inches else 21} G{90 if mod.absolute else 91} G94 "
+                       f"M{mod.spindle} M{mod.coolant} T{mod.tool} F{mod.feed / (25.4 if mod.inches else 1):.0f} "
+                       f"S{mod.speed:.0f}]")
             return 0
         if cmd == "X":
             if self._alarm:
@@ -572,15 +585,17 @@ class GrblEmulator:
             return 0
         if cmd == "H":
             return self._home()
-        if not (cmd[0].isdigit() or cmd[0] in "+-."):
+        if cmd[0] in "CJ#NRSI":
             return 3  # $C, $J=, $#, $N, $RST=, $SLP, $I=: not emulated
         m = _SETTING.fullmatch(line)
         if not m:
-            return 2
-        if not m.group(2) or m.group(4):
+            return 2  # not a setting's number
+        if m.group(2) is None:
             return 3
         if m.group(3) is None:
             return 2
+        if m.group(4):
+            return 3
         return self._store_setting(int(float(m.group(1))), float(m.group(3)))
 
     def _store_setting(self, n: int, value: float) -> int:
@@ -614,7 +629,7 @@ class GrblEmulator:
         home = [self.settings[130 + i] + self.settings[27] if mask >> i & 1 else -self.settings[27]
                 for i in range(len(self.axes))]
         self._steps_done = [_round_steps(h * self._spu(i)) for i, h in enumerate(home)]
-        self._gc_pos = [s / (self._spu(i) or 1.0) for i, s in enumerate(self._steps_done)]
+        self._gc_pos = self._units(self._steps_done)
         self._alarm = False
         return 0
 
@@ -653,14 +668,16 @@ class GrblEmulator:
                 return 20
         if words.get("N", 0.0) > 9999999:
             return 27
+        if words.get("T", 0.0) > 255:
+            return 38
         if any(w in words for w in "IJKLR") or ("P" in words and groups.get("non-modal") != 4):
             return 36
-        m = self._modal
-        inches = {20: True, 21: False}.get(groups.get("units", -1), m.inches)
+        mod = self._modal
+        inches = {20: True, 21: False}.get(groups.get("units", -1), mod.inches)
         scale = 25.4 if inches else 1.0
         axis = {a: words[a] * scale for a in self.axes if a in words}
-        motion = groups.get("motion", m.motion)
-        feed = words["F"] * scale if "F" in words else m.feed
+        motion = groups.get("motion", mod.motion)
+        feed = words["F"] * scale if "F" in words else mod.feed
         if groups.get("non-modal") == 4 and "P" not in words:
             return 28
         if groups.get("non-modal") == 53 and motion not in (0, 1):
@@ -670,22 +687,39 @@ class GrblEmulator:
         if motion == 1 and axis and feed == 0.0:
             return 22
         # the block is valid: apply it, in GRBL's order
-        m.inches, m.feed, m.motion = inches, feed, motion
-        m.tool = int(words.get("T", m.tool))
+        mod.inches, mod.feed, mod.motion = inches, feed, motion
+        mod.tool = int(words.get("T", mod.tool))
         if "distance" in groups:
-            m.absolute = groups["distance"] == 90
+            mod.absolute = groups["distance"] == 90
         sync = groups.get("non-modal") == 4
-        spindle, coolant, speed = groups.get("spindle", m.spindle), groups.get("coolant", m.coolant), words.get("S")
-        if (spindle, coolant) != (m.spindle, m.coolant) or (speed is not None and speed != m.speed):
+        spindle, coolant, speed = groups.get("spindle", mod.spindle), groups.get("coolant", mod.coolant), words.get("S")
+        if (spindle, coolant) != (mod.spindle, mod.coolant) or (speed not in (None, mod.speed) and spindle != 5):
             sync = sync or not self.settings[32]  # outside laser mode GRBL waits for the planner to empty
-        m.spindle, m.coolant = spindle, coolant
-        m.speed = m.speed if speed is None else min(max(speed, self.settings[31]), self.settings[30])
+        mod.spindle, mod.coolant = spindle, coolant
+        mod.speed = mod.speed if speed is None else speed
         if sync:
             self._dwell_left = words.get("P", 0.0)
         if axis and motion in (0, 1):
-            absolute = m.absolute or groups.get("non-modal") == 53
-            self._gc_pos = [axis.get(a, 0.0 if absolute else 0.0) + (0.0 if absolute and a in axis else p)
-                            if not absolute or a in axis else p for a, p in zip(self.axes, self._gc_pos)]
+            absolute = mod.absolute or groups.get("non-modal") == 53
+            self._gc_pos = [p if a not in axis else axis[a] if absolute else p + axis[a]
+                            for a, p in zip(self.axes, self._gc_pos, strict=True)]
             target = [_round_steps(p * self._spu(i)) for i, p in enumerate(self._gc_pos)]
             self._waiting = (target, 0.0 if motion == 0 else feed)
         return None if sync or self._waiting else 0
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Serve one emulator until Ctrl-C, printing its port."""
+    parser = argparse.ArgumentParser(prog="python -m clients.emulators.grbl", description=__doc__.splitlines()[0])
+    parser.add_argument("--axes", default="XYZ", help="axis letters, from XYZABC (default XYZ)")
+    parser.add_argument("--time-scale", type=float, default=1.0, help="machine seconds per second (default 1)")
+    args = parser.parse_args(argv)
+    with GrblEmulator(axes=args.axes, time_scale=args.time_scale) as emulator:
+        print(emulator.port, flush=True)
+        with contextlib.suppress(KeyboardInterrupt):
+            while True:
+                time.sleep(1.0)
+
+
+if __name__ == "__main__":
+    main()
