@@ -176,7 +176,8 @@ def _make_adapter(args: argparse.Namespace, session: object, arm: Robot) -> Any:
     if args.kind == "sim":
         from clients.sim import SimAdapter
 
-        return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale)  # type: ignore[arg-type]
+        return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale,  # type: ignore[arg-type]
+                          lag=args.lag)
     if not args.port:
         raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
     if args.kind == "ssc32":
@@ -349,6 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     _network_args(p)
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
+    p.add_argument("--lag", type=float, default=0.0, help="first-order servo lag time constant [s] (sim)")
     p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl)")
     p.add_argument("--baud", type=int, default=115200)
     p.set_defaults(func=cmd_adapter)

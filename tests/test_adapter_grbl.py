@@ -81,3 +81,29 @@ def test_grbl_stop_mid_move_flushes_and_halts(client: ArmClient, service: object
             sub.undeclare()  # type: ignore[attr-defined]
         finally:
             adapter.close()
+
+
+def test_grbl_alarm_and_silence(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    arm = robots.load("gupta3")
+    with GrblEmulator() as emu:
+        adapter = GrblAdapter(adapter_session, arm, emu.port, check_period=0.2)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            events, sub = collect(client, "armd/gupta3/events")
+            client.move("gupta3", [0.8, 1.3, -1.1], speed=0.5)
+            time.sleep(0.5)
+            emu.inject_alarm(1)  # a hard limit: ALARM:1
+            wait_for(lambda: any(e["event"] == "aborted" and "ALARM:1" in str(e.get("reason")) for e in events),
+                     timeout=5, what="the alarm reported")
+            sub.undeclare()  # type: ignore[attr-defined]
+        finally:
+            adapter.close()
+    with GrblEmulator() as emu:
+        adapter = GrblAdapter(adapter_session, arm, emu.port, check_period=0.2)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            emu.responding = False
+            wait_for(lambda: service._adapter_count(arm) == 0, timeout=5, what="the token withdrawn")  # type: ignore[attr-defined]
+            assert adapter.fault and "does not answer" in adapter.fault
+        finally:
+            adapter.close()

@@ -100,9 +100,16 @@ def test_stop_mid_move_halts(client: ArmClient, service: object, adapter_session
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             goal = np.array([1.2, 2.0, -1.8, 1.0, 1.0])
+            events, sub = collect(client, "armd/insomniac/events")
             client.move("insomniac", goal.tolist(), speed=0.3)
             time.sleep(0.5)
+            asked = time.time()
             stopped = client.stop("insomniac")
+            wait_for(lambda: any(e["event"] == "started" and e.get("id") == stopped["id"] for e in events),
+                     timeout=2, what="the stop started")
+            started = next(e for e in events if e["event"] == "started" and e.get("id") == stopped["id"])
+            assert float(started["time"]) - asked < 0.1  # the adapter switched to the stop within a few cycles
+            sub.undeclare()  # type: ignore[attr-defined]
             time.sleep(stopped["duration"] + 0.3)
             sent = len(emu.history)
             time.sleep(0.3)
@@ -131,3 +138,22 @@ def test_adapter_killed_mid_move_then_no_adapter(client: ArmClient, service: obj
         adapter.shutdown()
 
 
+
+
+def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, service: object,
+                                                          adapter_session: zenoh.Session) -> None:
+    arm = robots.load("sg5ut")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            goal = np.array([0.3, 1.1, -0.5, -0.4])
+            client.move("sg5ut", goal.tolist(), wait=True, wait_timeout=15)
+            time.sleep(0.2)
+            assert abs(emu.pulse(1) + emu.pulse(2) - 3000) <= 1  # channels 1 and 2 mirrored about 1500
+            assert np.allclose(ssc32_joints(arm, emu), goal, atol=2e-3)
+            assert all(set(m.pulses) == {0, 1, 2, 3, 4} for m in emu.history[1:])  # every channel of the map
+            client.gripper("sg5ut", 1.0)
+            wait_for(lambda: emu.target(5) == 2000, timeout=5, what="the gripper channel")
+        finally:
+            adapter.close()

@@ -221,3 +221,24 @@ def test_stop_mid_move(client: ArmClient, sim: SimAdapter) -> None:
     assert not np.allclose(s["position"], [-0.8, 1.5, -0.6], atol=1e-3)  # halted short of the goal
     arm = robots.load("gupta3")
     assert arm.limits.contains(np.array(s["position"]), tol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "desk4"])
+def test_every_arm_moves_through_the_simulator(client: ArmClient, router: str, service: object, name: str) -> None:
+    from service.zconfig import network_config
+
+    arm = robots.load(name)
+    session = zenoh.open(network_config(connect=[router]))
+    adapter = SimAdapter(session, arm, time_scale=5.0, lag=0.02)
+    try:
+        deadline = time.monotonic() + 5
+        while service._adapter_count(arm) == 0:  # type: ignore[attr-defined]
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        q = random_in_limits(arm, 1, seed=60)[0]
+        target = arm.fk(q)
+        client.move(name, {"target": target.tolist()}, wait=True, wait_timeout=20)
+        assert np.linalg.norm(arm.fk(adapter.position) - target) < 1e-3  # within 1 mm, through the servo lag
+    finally:
+        adapter.close()
+        session.close()
