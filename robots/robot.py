@@ -95,6 +95,8 @@ class Robot:
 
     def joint_vector(self, q: object, field: str = "q") -> FloatArray:
         """``q`` as a float array of this arm's length, all finite; else :class:`BadRequest`."""
+        if type(q) is np.ndarray and q.shape == (self.nq,) and q.dtype == np.float64 and math.isfinite(sum(q.tolist())):
+            return q  # the common case: already a finite vector of the right length
         try:
             arr = np.asarray(q, dtype=float)
         except (TypeError, ValueError):

@@ -21,6 +21,7 @@ and ``J = [yaw, shoulder, elbow, wrist]`` joint indices (``wrist = -1``: none).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -54,6 +55,11 @@ class FamilyParams:
     @property
     def has_wrist(self) -> bool:
         return bool(self.J[3] >= 0)
+
+    @functools.cached_property
+    def pitch_joints(self) -> tuple[int, ...]:
+        """Indices of the pitch joints (shoulder, elbow, wrist): their sum is the tool pitch."""
+        return tuple(int(j) for j in self.J[1:] if j >= 0)
 
     @classmethod
     def of(cls, robot: Robot) -> FamilyParams:

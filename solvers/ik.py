@@ -38,7 +38,7 @@ from robots import BadRequest, Robot
 
 from .analytic import EXACT, NONE, solve_one
 from .closest import closest_family
-from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches
+from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches, family_fk
 from .qp import QPRefiner
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
@@ -167,14 +167,30 @@ def _dist(a: FloatArray, b: FloatArray) -> float:
     return math.dist(a.tolist(), b.tolist())
 
 
+def _pose(arm: _Arm, q: FloatArray) -> tuple[FloatArray, float]:
+    """Tool point [m] and pitch [rad] at ``q`` on the exact model: the family's formula where
+    it is the URDF's FK (checked against Pinocchio when the arm was first seen), else Pinocchio."""
+    fp = arm.fp
+    if fp is None or not arm.exact:
+        pose = arm.robot.pose(q)
+        return pose.position, pose.pitch
+    reached = np.empty(3)
+    family_fk(fp.P, fp.J, q, reached)
+    g = arm.robot.geometry
+    assert g is not None
+    ql = q.tolist()
+    pitch = 0.0 if g.level else math.remainder(sum(ql[j] for j in fp.pitch_joints), TWO_PI)
+    return reached, pitch
+
+
 def _result(arm: _Arm, status: str, chosen: Branch, others: list[Branch], point: FloatArray,
             asked_pitch: float | None, iterations: int, reason: str | None) -> IKResult:
-    """The answer, with the tool point and pitch at ``chosen.q`` by Pinocchio FK (the check)."""
-    pose = arm.robot.pose(chosen.q)
-    pitch_error = None if asked_pitch is None else math.remainder(pose.pitch - asked_pitch, TWO_PI)
+    """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the check)."""
+    reached, pitch = _pose(arm, chosen.q)
+    pitch_error = None if asked_pitch is None else math.remainder(pitch - asked_pitch, TWO_PI)
     return IKResult(
-        status=status, q=chosen.q, position_error=_dist(pose.position, point), reached=pose.position,
-        target=point, pitch=pose.pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
+        status=status, q=chosen.q, position_error=_dist(reached, point), reached=reached,
+        target=point, pitch=pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
         iterations=iterations, reason=reason,
     )
 
@@ -208,7 +224,9 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
                              arm.exact_pitch_search, ref, x, y, z, prefs, b.qs, b.ids, b.errs, b.work)
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0)
-    rows = [(BRANCH_NAMES[int(b.ids[r])], b.qs[r].copy(), float(b.errs[r])) for r in range(m)]
+    qs = b.qs[:m].copy()
+    rows = [(BRANCH_NAMES[i], qs[r], e) for r, (i, e) in enumerate(zip(b.ids[:m].tolist(), b.errs[:m].tolist(),
+                                                                       strict=True))]
     iterations = 0
     if arm.exact:  # the formula is the URDF's FK: no refinement; _result checks the chosen one by Pinocchio
         found = [Branch(name, q, err) for name, q, err in rows]

@@ -1,9 +1,11 @@
-"""IK answers: :class:`IKResult` and the :class:`Branch` es it chose among."""
+"""IK answers: :class:`IKResult` and the :class:`Branch` es it chose among.
+
+Named tuples: immutable values, and cheap to make (an answer is made per request).
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,8 +17,7 @@ APPROXIMATE = "approximate"
 UNREACHABLE = "unreachable"
 
 
-@dataclass(frozen=True)
-class Branch:
+class Branch(NamedTuple):
     """One valid IK solution: its name (``front/elbow_up`` ...), ``q`` [rad] and its errors."""
 
     name: str
@@ -27,8 +28,7 @@ class Branch:
         return {"name": self.name, "q": self.q.tolist(), "position_error": self.position_error}
 
 
-@dataclass(frozen=True)
-class IKResult:
+class IKResult(NamedTuple):
     """The answer to one IK request.
 
     Attributes:
@@ -57,7 +57,7 @@ class IKResult:
     pitch: float
     pitch_error: float | None
     branch: str
-    branches: tuple[Branch, ...] = field(default=())
+    branches: tuple[Branch, ...] = ()
     iterations: int = 0
     reason: str | None = None
 

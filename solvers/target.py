@@ -41,10 +41,15 @@ def target_point(robot: Robot, target: object, q: FloatArray | None = None) -> F
 
     ``q`` is needed only for a sensor mounted on the arm (it looks along an arm frame).
     """
+    if type(target) is np.ndarray and target.shape == (3,) and target.dtype == np.float64:
+        x, y, z = target.tolist()
+        if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
+            return target.copy()  # the common case from Python: nothing to convert or check again
+        raise BadRequest(f"target must be finite, got {[x, y, z]}", field="target")
     if isinstance(target, (list, tuple)) and len(target) == 3 and all(type(v) in (float, int) for v in target):
         if not all(math.isfinite(v) for v in target):
             raise BadRequest(f"target must be finite, got {list(target)}", field="target")
-        return np.array(target, dtype=float)  # the common case, without NumPy's checks
+        return np.array(target, dtype=float)  # the common case from JSON, without NumPy's checks
     if isinstance(target, SensorReading):
         return robot.sensor_point(target.sensor, target.range, target.bearing, q)
     if isinstance(target, Mapping):
