@@ -87,18 +87,20 @@ def _phases(prof: ruckig.Profile) -> FloatArray:
     """Rows (duration, jerk, a0, v0, p0) of one degree of freedom's profile: the brake
     pre-profile, the seven main phases, the acceleration post-profile, then the end state
     carried on at constant acceleration (as Ruckig's ``at_time`` does past the end)."""
-    parts = []
-    for pre in (prof.brake,):
-        if pre.duration > 0:
-            parts.append(np.column_stack([pre.t, pre.j, pre.a, pre.v, pre.p]))
-    parts.append(np.column_stack([prof.t, prof.j, prof.a[:7], prof.v[:7], prof.p[:7]]))
-    post = prof.accel
-    if post.duration > 0:
-        parts.append(np.column_stack([post.t, post.j, post.a, post.v, post.p]))
-    rows = np.vstack(parts)
-    T, j, a0, v0, p0 = rows[-1]
-    end = [np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6))]
-    return np.vstack([rows, end])
+    main = np.array((prof.t, prof.j, prof.a[:7], prof.v[:7], prof.p[:7])).T
+    brake, accel = prof.brake, prof.accel
+    parts = [main]
+    if brake.duration > 0:
+        parts.insert(0, np.array((brake.t, brake.j, brake.a, brake.v, brake.p)).T)
+    if accel.duration > 0:
+        parts.append(np.array((accel.t, accel.j, accel.a, accel.v, accel.p)).T)
+    rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
+    T, j, a0, v0, p0 = rows[-1].tolist()
+    end = (np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6)))
+    out = np.empty((len(rows) + 1, 5))
+    out[:-1] = rows
+    out[-1] = end
+    return out
 
 
 def _phase_table(profiles: Sequence[ruckig.Profile]) -> FloatArray:

@@ -29,7 +29,8 @@ class JointState:
 
     @property
     def moving(self) -> bool:
-        return bool(np.any(np.abs(self.velocity) > 1e-9) or np.any(np.abs(self.acceleration) > 1e-9))
+        return any(abs(x) > 1e-9 for x in self.velocity.tolist()) or any(abs(x) > 1e-9
+                                                                          for x in self.acceleration.tolist())
 
     def to_dict(self) -> dict[str, Any]:
         return {"position": self.position.tolist(), "velocity": self.velocity.tolist(),

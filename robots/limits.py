@@ -7,6 +7,7 @@ two rows of ``A q <= b``, the form a QP takes as hard inequality constraints.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,9 +76,23 @@ class JointLimits:
 
     def contains(self, q: FloatArray, tol: float = 1e-9) -> bool:
         """True when ``q`` is within every position limit, box and coupled, to ``tol``."""
-        if np.any(q < self.lower - tol) or np.any(q > self.upper + tol):
-            return False
-        return all(c.lower - tol <= c.value(q) <= c.upper + tol for c in self.coupled)
+        values = q.tolist() if isinstance(q, np.ndarray) else list(q)  # plain floats: no NumPy overhead per call
+        for v, lo, hi in zip(values, self._lower, self._upper, strict=True):
+            if not lo - tol <= v <= hi + tol:  # (NaN fails too)
+                return False
+        for c in self.coupled:
+            v = sum(k * x for k, x in zip(c.coefficients.tolist(), values, strict=True))
+            if not c.lower - tol <= v <= c.upper + tol:
+                return False
+        return True
+
+    @functools.cached_property
+    def _lower(self) -> list[float]:
+        return self.lower.tolist()
+
+    @functools.cached_property
+    def _upper(self) -> list[float]:
+        return self.upper.tolist()
 
     def check(self, q: FloatArray, tol: float = 1e-9) -> None:
         """Raise the first limit error of ``q``, if any."""
