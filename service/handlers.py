@@ -86,10 +86,10 @@ class Handlers:
 
     def move(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
         allowed(req, "goal", "path", "speed", "rate_hz", "via")
+        known = self.book.current(arm)
+        traj = self._plan(arm, req, known.state)  # a bad request is told so, adapter or not
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
-        known = self.book.current(arm)
-        traj = self._plan(arm, req, known.state)
         msg = self._message(arm, traj, "move")
         self.publish(arm, msg)
         self.book.commanded(arm.name, traj)

@@ -41,7 +41,7 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     except UnicodeDecodeError:
         raise BadRequest("the payload is not UTF-8 text (a JSON object is expected)", field="payload") from None
     try:
-        obj = json.loads(text, parse_constant=_reject_constant)
+        obj = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
     except RecursionError:
         raise BadRequest("the JSON is nested too deeply", field="payload") from None
     except ValueError as e:
@@ -59,6 +59,13 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
 
 def _reject_constant(name: str) -> None:
     raise ValueError(f"{name} is not a number JSON allows")
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # 1e999 parses to infinity
+        raise ValueError(f"{text[:20]} is too large for a number")
+    return value
 
 
 def _depth(obj: object, level: int = 1) -> int:
@@ -118,9 +125,9 @@ def allowed(req: Mapping[str, Any], *names: str) -> None:
 
 
 def number(req: Mapping[str, Any], name: str, default: float | None = None) -> float | None:
-    v = req.get(name, default)
-    if v is None:
-        return None
+    v = req.get(name)
+    if v is None:  # absent, or null: the default
+        return default
     if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
         raise BadRequest(f"{name} must be a finite number, got {v!r}", field=name)
     return float(v)

@@ -22,7 +22,7 @@ from robots import BadRequest, Robot
 
 from .analytic import EXACT, NONE, solve_many
 from .geometric import BRANCH_NAMES
-from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, _arm, _closest, _solve_numerical, solve_ik
+from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _arm, _closest, _solve_numerical, solve_ik
 from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
 from .target import approach_pitch
 
@@ -117,9 +117,9 @@ def solve_ik_batch(
                              f"got shape {list(s.shape)}", field="seeds")
     refs = np.ascontiguousarray(refs)
     if isinstance(tolerance, bool) or not (
-        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0
+        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
     ):
-        raise BadRequest(f"tolerance must be a positive number [m], got {tolerance!r}", field="tolerance")
+        raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
 
     status = np.full(m, UNREACHABLE, dtype="<U11")
     branch = np.full(m, "numerical", dtype="<U18")

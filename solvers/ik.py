@@ -47,6 +47,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
+MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
 PITCH_TOLERANCE = 1e-9  # [rad]
 FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference, in order
 _ATLAS_STARTS = 3
@@ -147,9 +148,9 @@ def solve_ik(
     point = target_point(robot, target, ref)
     pitch = approach_pitch(robot, approach)
     if isinstance(tolerance, bool) or not (
-        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0
+        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
     ):
-        raise BadRequest(f"tolerance must be a positive number [m], got {tolerance!r}", field="tolerance")
+        raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
     if arm.fp is None:
         result = _solve_numerical(arm, point, ref, tolerance)
     else:

@@ -1,0 +1,87 @@
+"""Fuzz benchmark: N bad requests (default 10,000) to a service in another process, over Zenoh.
+
+Checks that each gets exactly one structured error reply, that no trajectory or gripper
+command is published, that the service's resident memory stays bounded, and that a valid
+request afterwards gets the right answer. Prints the counts per error code, the time, and
+the service's memory before and after. The suite runs a 2,000-request version
+(tests/test_fuzz.py) against an in-process service.
+
+Run: ``.venv/bin/python bench/fuzz.py [--n 10000]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from clients import ArmClient  # noqa: E402
+from tests.fuzzing import bad_requests  # noqa: E402
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--n", type=int, default=10_000)
+    args = ap.parse_args()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint], cwd=ROOT,
+                            stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    proc.stdout.readline()
+    try:
+        with ArmClient(endpoint, timeout=10.0) as c:
+            published: list[str] = []
+            sub = c.session.declare_subscriber("armd/**", lambda s: published.append(str(s.key_expr))
+                                               if str(s.key_expr).endswith(("/trajectory", "/gripper")) else None)
+            before = rss_mb(proc.pid)
+            codes: dict[str, int] = {}
+            wrong = 0
+            t0 = time.perf_counter()
+            for key, payload in bad_requests(args.n, seed=11):
+                replies = list(c.session.get(f"armd/{key}", payload=payload, timeout=10.0))
+                if len(replies) != 1 or replies[0].err is None:
+                    wrong += 1
+                    got = "ok " + replies[0].ok.payload.to_bytes()[:80].decode() if replies and replies[0].ok else ""
+                    print(f"  {key}: {len(replies)} replies {got} for {payload[:100]!r}", file=sys.stderr)
+                    continue
+                body = replies[0].err.payload.to_bytes()
+                try:
+                    code = str(json.loads(body).get("code", "?"))
+                except ValueError:  # not the service's: Zenoh's own error (a timeout)
+                    code = f"zenoh:{body[:40]!r}"
+                    print(f"  {key}: {code} for {payload[:60]!r}", file=sys.stderr)
+                codes[code] = codes.get(code, 0) + 1
+            elapsed = time.perf_counter() - t0
+            time.sleep(0.3)
+            after = rss_mb(proc.pid)
+            ok = c.ik("insomniac", [0.25, 0.05, 0.12]).status
+            sub.undeclare()
+        print(f"{args.n} bad requests in {elapsed:.1f} s ({args.n / elapsed:.0f}/s): "
+              f"{args.n - wrong} answered with exactly one structured error, {wrong} not")
+        print("codes:", ", ".join(f"{k} {v}" for k, v in sorted(codes.items())))
+        print(f"published trajectories or gripper commands: {len(published)}")
+        print(f"service resident memory: {before:.0f} MB before, {after:.0f} MB after")
+        print(f"a valid IK request afterwards: {ok}")
+    finally:
+        proc.terminate()
+        proc.wait(20)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,49 @@
+"""Fuzz: thousands of bad requests over Zenoh, each answered once with a structured error;
+nothing published, memory bounded, and the service still right afterwards."""
+
+from __future__ import annotations
+
+import json
+import resource
+import time
+
+import numpy as np
+
+import robots
+import solvers
+from clients import ArmClient
+from tests.fuzzing import bad_requests
+
+N = 2000  # the suite's share; bench/fuzz.py runs 10,000 and more
+
+
+def test_bad_requests_each_get_one_structured_error(client: ArmClient, service: object) -> None:
+    published: list[str] = []
+    sub = client.session.declare_subscriber("armd/**", lambda s: published.append(str(s.key_expr))
+                                            if s.key_expr.intersects("armd/*/trajectory") or
+                                            s.key_expr.intersects("armd/*/gripper") else None)
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    try:
+        codes: dict[str, int] = {}
+        for i, (key, payload) in enumerate(bad_requests(N, seed=7)):
+            replies = list(client.session.get(f"armd/{key}", payload=payload, timeout=10.0))
+            assert len(replies) == 1, (i, key, payload[:80], len(replies))
+            reply = replies[0]
+            assert reply.ok is None, (i, key, payload[:200], reply.ok.payload.to_bytes()[:200])
+            assert reply.err is not None
+            err = json.loads(reply.err.payload.to_bytes())
+            assert isinstance(err.get("code"), str) and isinstance(err.get("message"), str) and err["message"], err
+            codes[err["code"]] = codes.get(err["code"], 0) + 1
+        time.sleep(0.2)
+    finally:
+        sub.undeclare()
+    assert published == []  # no trajectory or gripper command for any of them
+    assert set(codes) <= {"bad_request", "unknown_robot", "unknown_verb", "too_large", "no_adapter", "unreachable"}
+    assert codes.get("internal", 0) == 0
+    grown_mb = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - rss_before) / 1024
+    assert grown_mb < 200, f"resident memory grew by {grown_mb:.0f} MB"
+    # and a valid request afterwards gets the right answer
+    arm = robots.load("insomniac")
+    target = arm.fk(np.array([0.3, 1.2, -1.0, -0.5, 0.0]))
+    r = client.ik("insomniac", target.tolist())
+    assert r.status == "ok" and np.allclose(r.q, solvers.solve_ik(arm, target).q, atol=1e-12)
