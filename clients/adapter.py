@@ -115,6 +115,7 @@ class Adapter(ABC):
         hardware is ready)."""
         self._sub = self.session.declare_subscriber(f"{self._base}/trajectory", self._on_trajectory)
         self._grip_sub = self.session.declare_subscriber(f"{self._base}/gripper", self._on_gripper)
+        self._publish_state()  # where the arm is, before anyone can plan for it
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
         self._thread.start()
 

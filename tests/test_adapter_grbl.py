@@ -31,6 +31,7 @@ def test_grbl_move_end_to_end(client: ArmClient, service: object, adapter_sessio
             for i, act in enumerate(arm.actuators.actuators):
                 assert emu.settings[100 + i] == pytest.approx(act.steps_per_degree, rel=1e-4)  # type: ignore[union-attr]
             target = [0.15, 0.05, 0.12]
+            wait_for(lambda: client.state("gupta3")["source"] == "adapter", what="the adapter's state")
             client.move("gupta3", {"target": target}, wait=True, wait_timeout=20)
             wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
             q = grbl_joints(arm, emu)
