@@ -112,7 +112,9 @@ class Robot:
 
     # -- kinematics ----------------------------------------------------------------------
 
-    def _data(self) -> pin.Data:
+    def data(self) -> pin.Data:
+        """This thread's Pinocchio ``Data`` for :attr:`model` (Data is written by every
+        computation, so each thread gets its own; reuse it within a thread)."""
         data = getattr(self._local, "data", None)
         if data is None:
             data = self.model.createData()
@@ -120,7 +122,7 @@ class Robot:
         return data
 
     def _tool_placement(self, q: FloatArray) -> pin.SE3:
-        data = self._data()
+        data = self.data()
         pin.forwardKinematics(self.model, data, q)
         return pin.updateFramePlacement(self.model, data, self.tool_frame_id)
 
@@ -154,7 +156,7 @@ class Robot:
     def jacobian(self, q: Sequence[float] | FloatArray) -> FloatArray:
         """Jacobian of the tool point [m/rad], shape (3, nq), in ``base`` axes."""
         qa = np.asarray(q, dtype=float)
-        data = self._data()
+        data = self.data()
         J = pin.computeFrameJacobian(self.model, data, qa, self.tool_frame_id, pin.LOCAL_WORLD_ALIGNED)
         return np.array(J[:3, :])
 
@@ -164,7 +166,7 @@ class Robot:
         if fid >= self.model.nframes:
             frames = sorted({f.name for f in self.model.frames})
             raise BadRequest(f"unknown frame {frame!r}; frames: {', '.join(frames)}", field="frame")
-        data = self._data()
+        data = self.data()
         pin.forwardKinematics(self.model, data, np.asarray(q, dtype=float))
         return np.array(pin.updateFramePlacement(self.model, data, fid).translation)
 
@@ -193,7 +195,7 @@ class Robot:
         qa = self.joint_vector(q)
         assert s.frame is not None
         fid = self.model.getFrameId(s.frame)
-        data = self._data()
+        data = self.data()
         pin.forwardKinematics(self.model, data, qa)
         placement = pin.updateFramePlacement(self.model, data, fid)
         return np.array(placement.translation + d * placement.rotation[:, 0])

@@ -20,7 +20,6 @@ same precision (see docs/benchmarks.md).
 from __future__ import annotations
 
 import math
-import threading
 from dataclasses import dataclass
 
 import daqp
@@ -51,7 +50,7 @@ class QPError(ArmdError):
 
 
 class QPRefiner:
-    """Constrained Gauss-Newton IK for one robot (thread-safe: Pinocchio data per thread)."""
+    """Constrained Gauss-Newton IK for one robot (thread-safe: it uses the robot's per-thread Data)."""
 
     def __init__(self, robot: Robot, *, step: float = 0.4) -> None:
         self.robot = robot
@@ -73,14 +72,6 @@ class QPRefiner:
             row = np.zeros(self.n)
             row[[g.shoulder, g.elbow, g.wrist]] = 1.0
             self.pitch_row = row
-        self._local = threading.local()
-
-    def _data(self) -> pin.Data:
-        data = getattr(self._local, "data", None)
-        if data is None:
-            data = self.model.createData()
-            self._local.data = data
-        return data
 
     def project(self, q: FloatArray) -> FloatArray:
         """The point of the limit set (box and coupled) nearest ``q`` [rad]."""
@@ -107,7 +98,7 @@ class QPRefiner:
     def _evaluate(self, q: FloatArray, target: FloatArray, pitch: float | None, w2: float,
                   jacobian: bool) -> tuple[float, FloatArray, float, FloatArray | None]:
         """(cost, position error vector [m], pitch error [rad], Jacobian or None) at ``q``."""
-        data = self._data()
+        data = self.robot.data()
         if jacobian:
             pin.computeJointJacobians(self.model, data, q)
         else:
