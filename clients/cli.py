@@ -272,8 +272,13 @@ def cmd_plan(args: argparse.Namespace) -> int:
         req["start"] = _numbers(args.start, "start")
     with _client(args) as c:  # type: ignore[attr-defined]
         r = c.call(f"{args.robot}/plan", req)
+        if args.plot:
+            from clients.client import TrajectoryReply
+
+            c.plot(args.robot, TrajectoryReply.of(r), args.plot)
     _show(args, r, [("path", r["path"]), ("duration [s]", r["duration"]), ("samples", len(r["times"])),
-                    ("rate [Hz]", r["rate_hz"]), ("end [rad]", r["position"][-1]), ("end commands", r["commands"][-1])])
+                    ("rate [Hz]", r["rate_hz"]), ("end [rad]", r["position"][-1]), ("end commands", r["commands"][-1])]
+          + ([("plot", args.plot)] if args.plot else []))
     return 0
 
 
@@ -380,6 +385,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("plan", help="plan a trajectory on the service (nothing moves)")
     _motion_args(p)
     p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector (default: where the arm is)")
+    p.add_argument("--plot", metavar="FILE.png", help="also write a PNG of the trajectory (limits drawn)")
     _client_args(p)
     p.set_defaults(func=cmd_plan)
 
@@ -393,6 +399,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot")
     _client_args(p)
     p.set_defaults(func=cmd_stop)
+
+    from clients import demo, workspace
+
+    workspace.register(sub)
+    demo.register(sub)
     return parser
 
 

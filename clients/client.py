@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -77,6 +78,13 @@ class TrajectoryReply:
     velocity: FloatArray
     acceleration: FloatArray
     commands: NDArray[np.int64]
+
+    @classmethod
+    def of(cls, r: dict[str, Any]) -> TrajectoryReply:
+        """From the JSON of a ``plan`` reply."""
+        return cls(r["path"], r["duration"], r["rate_hz"], r["joint_names"], np.array(r["times"]),
+                   np.array(r["position"]), np.array(r["velocity"]), np.array(r["acceleration"]),
+                   np.array(r["commands"], dtype=np.int64))
 
 
 @dataclass(frozen=True)
@@ -183,9 +191,7 @@ class ArmClient:
         if start is not None:
             req["start"] = _jsonable(start)
         r = self.call(f"{robot}/plan", req)
-        return TrajectoryReply(r["path"], r["duration"], r["rate_hz"], r["joint_names"], np.array(r["times"]),
-                               np.array(r["position"]), np.array(r["velocity"]), np.array(r["acceleration"]),
-                               np.array(r["commands"], dtype=np.int64))
+        return TrajectoryReply.of(r)
 
     def move(self, robot: str, goal: object, *, path: str = "joint", speed: float = 1.0,
              rate_hz: float | None = None, via: Sequence[object] = (), wait: bool = False,
@@ -197,6 +203,23 @@ class ArmClient:
         if wait:
             self.wait_until_still(robot, reply.goal, timeout=wait_timeout or reply.duration + 5.0)
         return reply
+
+    def plot(self, robot: str, trajectory: TrajectoryReply, out: str | Path, title: str | None = None) -> Path:
+        """Write a PNG of a planned trajectory (position, velocity, acceleration, jerk per
+        joint), the arm's limits, asked of the service, drawn as dashed lines."""
+        from planning.plot import plot_samples
+        from planning.trajectory import forward_jerk
+
+        joints = self.info(robot)["joints"]
+        by_name = {j["name"]: j for j in joints}
+        limit = {k: np.array([by_name[n][k] for n in trajectory.joint_names], dtype=float)
+                 for k in ("lower", "upper", "velocity", "acceleration", "jerk")}
+        t = trajectory
+        return plot_samples(
+            out, t.joint_names, t.times, t.position, t.velocity, t.acceleration,
+            forward_jerk(t.acceleration, 1.0 / t.rate_hz), lower=limit["lower"], upper=limit["upper"],
+            vmax=limit["velocity"], amax=limit["acceleration"], jmax=limit["jerk"],
+            title=title or f"{robot}: {t.path} trajectory, {t.duration:.2f} s at {t.rate_hz:g} Hz (dashed: limits)")
 
     def stop(self, robot: str) -> dict[str, Any]:
         return self.call(f"{robot}/stop")

@@ -1,40 +1,57 @@
 """Trajectory plots: position, velocity, acceleration and jerk per joint, limits drawn as lines.
 
-Uses matplotlib's Agg backend (no display needed). Called by ``armd plot``.
+Uses matplotlib's Agg backend (no display needed). Called by ``armd plot``, ``armd plan
+--plot`` and :meth:`clients.ArmClient.plot` (which has the samples and limits from the
+service rather than a :class:`Trajectory`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from robots import Robot
 
 from .trajectory import Trajectory
 
+FloatArray = NDArray[np.float64]
+
 
 def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str | None = None) -> Path:
     """Write a PNG of ``traj`` to ``out``: one row per quantity, one colour per joint; dashed
     lines at each joint's limits (position limits, and +-vmax, +-amax, +-jmax)."""
+    lim = robot.limits
+    return plot_samples(
+        out, traj.joint_names, traj.times, traj.position, traj.velocity, traj.acceleration, traj.jerk,
+        lower=lim.lower, upper=lim.upper, vmax=lim.velocity, amax=lim.acceleration, jmax=lim.jerk,
+        title=title or f"{traj.robot}: {traj.path} trajectory, {traj.duration:.2f} s at {traj.rate_hz:g} Hz "
+        "(dashed: limits)")
+
+
+def plot_samples(out: str | Path, joint_names: Sequence[str], times: FloatArray, position: FloatArray,
+                 velocity: FloatArray, acceleration: FloatArray, jerk: FloatArray, *, lower: FloatArray,
+                 upper: FloatArray, vmax: FloatArray, amax: FloatArray, jmax: FloatArray, title: str) -> Path:
+    """The plot of :func:`plot_trajectory` from bare samples (k, n) and per-joint limits (n,)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    lim = robot.limits
     rows = [
-        ("position [rad]", traj.position, (lim.lower, lim.upper)),
-        ("velocity [rad/s]", traj.velocity, (-lim.velocity, lim.velocity)),
-        ("acceleration [rad/s²]", traj.acceleration, (-lim.acceleration, lim.acceleration)),
-        ("jerk [rad/s³]", traj.jerk, (-lim.jerk, lim.jerk)),
+        ("position [rad]", position, (lower, upper)),
+        ("velocity [rad/s]", velocity, (-vmax, vmax)),
+        ("acceleration [rad/s²]", acceleration, (-amax, amax)),
+        ("jerk [rad/s³]", jerk, (-jmax, jmax)),
     ]
     fig, axes = plt.subplots(len(rows), 1, figsize=(10, 11), sharex=True)
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     for ax, (label, values, (lo, hi)) in zip(axes, rows, strict=True):
-        for j, name in enumerate(traj.joint_names):
+        for j, name in enumerate(joint_names):
             c = colours[j % len(colours)]
-            ax.plot(traj.times, values[:, j], color=c, label=name, linewidth=1.6)
+            ax.plot(times, values[:, j], color=c, label=name, linewidth=1.6)
             ax.axhline(float(lo[j]), color=c, linestyle="--", linewidth=0.8, alpha=0.7)
             ax.axhline(float(hi[j]), color=c, linestyle="--", linewidth=0.8, alpha=0.7)
         span = float(np.max(np.abs(values))) if values.size else 1.0
@@ -46,10 +63,9 @@ def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str 
             ax.set_ylim(-top, top)
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
-    axes[0].legend(loc="upper right", fontsize=8, ncol=min(len(traj.joint_names), 5))
+    axes[0].legend(loc="upper right", fontsize=8, ncol=min(len(joint_names), 5))
     axes[-1].set_xlabel("time [s]")
-    fig.suptitle(title or f"{traj.robot}: {traj.path} trajectory, {traj.duration:.2f} s at {traj.rate_hz:g} Hz "
-                 "(dashed: limits)")
+    fig.suptitle(title)
     fig.tight_layout()
     path = Path(out)
     fig.savefig(path, dpi=90)

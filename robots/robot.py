@@ -170,6 +170,26 @@ class Robot:
         pin.forwardKinematics(self.model, data, np.asarray(q, dtype=float))
         return np.array(pin.updateFramePlacement(self.model, data, fid).translation)
 
+    def skeleton(self, q: Sequence[float] | FloatArray) -> FloatArray:
+        """The arm as a stick figure: the base origin, the origin of every joint that moves
+        the tool, then the tool point; (k, 3) [m] in ``base``, repeated points dropped.
+        For drawings (workspace maps)."""
+        qa = np.asarray(q, dtype=float)
+        data = self.data()
+        pin.forwardKinematics(self.model, data, qa)
+        chain = []
+        j = int(self.model.frames[self.tool_frame_id].parentJoint)
+        while j > 0:
+            chain.append(j)
+            j = int(self.model.parents[j])
+        points = [np.zeros(3)] + [np.array(data.oMi[j].translation) for j in reversed(chain)]
+        points.append(np.array(pin.updateFramePlacement(self.model, data, self.tool_frame_id).translation))
+        kept = [points[0]]
+        for point in points[1:]:  # joints that share an origin (yaw and shoulder, say) are one point
+            if np.linalg.norm(point - kept[-1]) > 1e-9:
+                kept.append(point)
+        return np.array(kept)
+
     # -- sensors ----------------------------------------------------------------------
 
     def sensor_point(

@@ -79,7 +79,9 @@ class Service:
         import solvers
 
         for arm in self.arms.values():
-            solvers.solve_ik(arm, arm.fk(arm.neutral))
+            home = arm.fk(arm.neutral)
+            solvers.solve_ik(arm, home)
+            solvers.solve_ik(arm, 10.0 * home + 1.0)  # unreachable: the closest-point search's code and atlas
 
     # -- queries ------------------------------------------------------------------------
 

@@ -7,7 +7,7 @@
 ('ok', True)
 """
 
-from .batch import BatchIKResult, solve_ik_batch
+from .batch import BatchIKResult, reachable, solve_ik_batch
 from .geometric import FamilyParams
 from .ik import DEFAULT_TOLERANCE, solve_ik
 from .qp import QPRefiner, Refined
@@ -29,6 +29,7 @@ __all__ = [
     "Refined",
     "SensorReading",
     "approach_pitch",
+    "reachable",
     "solve_ik",
     "solve_ik_batch",
     "target_point",

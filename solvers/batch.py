@@ -164,3 +164,32 @@ def _store(i: int, r: IKResult, status: NDArray[np.str_], branch: NDArray[np.str
            err: FloatArray, reached: FloatArray, pitch: FloatArray) -> None:
     status[i], branch[i], q[i], err[i], reached[i], pitch[i] = (
         r.status, r.branch, r.q, r.position_error, r.reached, r.pitch)
+
+
+def reachable(robot: Robot, targets: object, *, approach: object = None,
+              tolerance: float = DEFAULT_TOLERANCE) -> NDArray[np.bool_]:
+    """Which targets :func:`solve_ik_batch` answers ``ok`` (with ``approach``), for maps of the
+    workspace: the same closed-form stage, without the closest-point search that an
+    unreachable target's answer needs (so a mostly unreachable grid costs what a reachable
+    one does). Arms outside the exact closed form take :func:`solve_ik_batch` itself.
+    """
+    arm = _arm(robot)
+    pts = _targets(targets)
+    pitch = approach_pitch(robot, approach)
+    if arm.fp is None or not arm.exact:
+        ok: NDArray[np.bool_] = solve_ik_batch(robot, pts, approach=approach, tolerance=tolerance).status == OK
+        return ok
+    m, n = len(pts), robot.nq
+    refs = np.ascontiguousarray(np.broadcast_to(robot.neutral, (m, n)))
+    shared = FREE_PITCHES if pitch is None else np.array([pitch])
+    prefs = np.broadcast_to(shared, (m, len(shared)))
+    q, reached = np.empty((m, n)), np.empty((m, 3))
+    codes, ids = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+    pitch_out, err = np.empty(m), np.empty(m)
+    fp = arm.fp
+    solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
+               refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
+    good: NDArray[np.bool_] = (codes != NONE) & (err <= tolerance)
+    if pitch is not None:
+        good &= codes == EXACT
+    return good

@@ -48,3 +48,30 @@ def test_cli_plot_errors(tmp_path: Path) -> None:
     r = run("plot", "nosuch", "--goal", "0", "--out", str(tmp_path / "x.png"))
     assert r.returncode == 2 and "unknown robot" in r.stderr
     assert not (tmp_path / "x.png").exists()
+
+
+def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path: Path) -> None:
+    """ArmClient.plot: the service's samples and limits (from ``info``) drawn; the same picture
+    as the planner's own plot of the same plan."""
+    import matplotlib.image as mpimg
+
+    from clients import ArmClient
+
+    assert isinstance(client, ArmClient)
+    arm = robots.load("sg5ut")
+    goal = [0.5, 1.2, -0.8, -0.3]
+    reply = client.plan("sg5ut", goal, start=arm.neutral)
+    out = client.plot("sg5ut", reply, tmp_path / "c.png", title="same")
+    local = plot_trajectory(planning.plan(arm, arm.neutral, goal), arm, tmp_path / "l.png", title="same")
+    a, b = mpimg.imread(out), mpimg.imread(local)
+    assert a.shape == b.shape
+    assert np.mean(np.abs(a - b)) < 1e-3  # same samples, same limits, same drawing
+
+
+def test_cli_plan_plot(client: object, router: str, tmp_path: Path, capsys: object) -> None:
+    from clients.cli import main
+
+    out = tmp_path / "plan.png"
+    assert main(["plan", "insomniac", "--target", "0.25", "0.05", "0.2", "--start", "0", "1.2", "-1.2", "0", "0",
+                 "--plot", str(out), "--connect", router]) == 0
+    assert out.stat().st_size > 10_000
