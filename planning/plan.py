@@ -97,8 +97,8 @@ def _sampled(robot: Robot, kind: str, rate: float, rpath: RuckigPath) -> Traject
     dt = 1.0 / rate
     k = whole_cycles(rpath.duration, dt)
     times = np.arange(k + 1, dtype=float) * dt
-    P, V, A = rpath.sample(times)
-    return build(robot, kind, rate, float(times[-1]), times, P, V, A, rpath.at)
+    P, V, A, J = rpath.sample(times, dt)
+    return build(robot, kind, rate, float(times[-1]), times, P, V, A, rpath.at, jerk=J)
 
 
 __all__ = ["JointState", "plan", "plan_stop"]

@@ -15,7 +15,9 @@ ends satisfied everywhere between them.
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -25,6 +27,7 @@ from numpy.typing import NDArray
 
 from robots import ArmdError, Robot
 
+from .compiled import evaluate
 from .state import JointState
 
 FloatArray = NDArray[np.float64]
@@ -54,8 +57,13 @@ class RuckigPath:
     def __init__(self, segments: Sequence[ruckig.Trajectory], nq: int) -> None:
         self.segments = list(segments)
         self.nq = nq
-        self.starts = np.cumsum([0.0] + [s.duration for s in self.segments[:-1]])
-        self.duration = float(sum(s.duration for s in self.segments))
+        durations = [s.duration for s in self.segments]
+        starts = [0.0]
+        for d in durations[:-1]:
+            starts.append(starts[-1] + d)
+        self.durations = np.array(durations)
+        self.starts = np.array(starts)
+        self.duration = float(sum(durations))
 
     def at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Position [rad], velocity [rad/s], acceleration [rad/s^2] at time ``t`` (clamped to the path)."""
@@ -65,68 +73,57 @@ class RuckigPath:
         p, v, a = self.segments[k].at_time(t - self.starts[k])
         return np.array(p), np.array(v), np.array(a)
 
-    def sample(self, times: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """Position, velocity, acceleration at every time (sorted) [s]: each segment's jerk
-        phases integrated in closed form, vectorised over the samples (what ``at_time``
-        computes one call at a time)."""
+    def sample(self, times: FloatArray,
+               dt: float | None = None) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Position, velocity, acceleration at every time (sorted) [s], and the jerk as the
+        forward difference of the acceleration over ``dt`` (default: the times' spacing):
+        each segment's jerk phases integrated in closed form (what ``at_time`` computes one
+        call at a time), compiled (:func:`planning.compiled.evaluate`)."""
         n = len(times)
-        P, V, A = np.empty((n, self.nq)), np.empty((n, self.nq)), np.empty((n, self.nq))
-        t = np.clip(times, 0.0, self.duration)
-        seg = np.clip(np.searchsorted(self.starts, t, side="right") - 1, 0, len(self.segments) - 1)
-        for k, traj in enumerate(self.segments):
-            rows = np.flatnonzero(seg == k)
-            if len(rows) == 0:
-                continue
-            local = np.minimum(t[rows] - self.starts[k], traj.duration)
-            p, v, a = _evaluate(_phase_table(traj.profiles[0]), local)
-            P[rows], V[rows], A[rows] = p, v, a
-        return P, V, A
+        if dt is None:
+            dt = float(times[1] - times[0]) if n > 1 else 1.0
+        P, V, A, Jk = (np.empty((n, self.nq)) for _ in range(4))
+        evaluate(self.tables, self.starts, self.durations, np.asarray(times, dtype=float), dt, P, V, A, Jk)
+        return P, V, A, Jk
+
+    @functools.cached_property
+    def tables(self) -> FloatArray:
+        """Every segment's phase table, padded to one width: (segments, dofs, phases, 5)."""
+        profiles = [seg.profiles[0] for seg in self.segments]
+        if all(p.brake.duration <= 0 and p.accel.duration <= 0 for ps in profiles for p in ps):
+            flat: list[float] = []  # the common case: seven phases per dof, read as five lists each
+            for ps in profiles:
+                for p in ps:
+                    flat += p.t
+                    flat += p.j
+                    flat += p.a[:7]
+                    flat += p.v[:7]
+                    flat += p.p[:7]
+            return np.array(flat).reshape(len(profiles), self.nq, 5, 7).transpose(0, 1, 3, 2)
+        rows = [[_phases(prof) for prof in ps] for ps in profiles]
+        width = max(len(r) for seg in rows for r in seg)
+        flat = []
+        for seg in rows:
+            for r in seg:  # zero-length phases first: they start where the next one does
+                flat += [0.0] * (5 * (width - len(r)))
+                for row in r:
+                    flat += row
+        return np.array(flat).reshape(len(rows), self.nq, width, 5)
 
 
-def _phases(prof: ruckig.Profile) -> FloatArray:
+def _phases(prof: ruckig.Profile) -> list[tuple[float, float, float, float, float]]:
     """Rows (duration, jerk, a0, v0, p0) of one degree of freedom's profile: the brake
-    pre-profile, the seven main phases, the acceleration post-profile, then the end state
-    carried on at constant acceleration (as Ruckig's ``at_time`` does past the end)."""
-    main = np.array((prof.t, prof.j, prof.a[:7], prof.v[:7], prof.p[:7])).T
-    brake, accel = prof.brake, prof.accel
-    parts = [main]
+    pre-profile, the seven main phases, then the acceleration post-profile. (Past the last
+    row, :func:`planning.compiled.evaluate` carries the end state on.)"""
+    rows: list[tuple[float, float, float, float, float]] = []
+    brake = prof.brake
     if brake.duration > 0:
-        parts.insert(0, np.array((brake.t, brake.j, brake.a, brake.v, brake.p)).T)
+        rows += zip(brake.t, brake.j, brake.a, brake.v, brake.p, strict=False)
+    rows += zip(prof.t, prof.j, prof.a, prof.v, prof.p, strict=False)  # a, v, p have an 8th entry (the end)
+    accel = prof.accel
     if accel.duration > 0:
-        parts.append(np.array((accel.t, accel.j, accel.a, accel.v, accel.p)).T)
-    rows = parts[0] if len(parts) == 1 else np.concatenate(parts)
-    T, j, a0, v0, p0 = rows[-1].tolist()
-    end = (np.inf, 0.0, a0 + T * j, v0 + T * (a0 + T * j / 2), p0 + T * (v0 + T * (a0 / 2 + T * j / 6)))
-    out = np.empty((len(rows) + 1, 5))
-    out[:-1] = rows
-    out[-1] = end
-    return out
-
-
-def _phase_table(profiles: Sequence[ruckig.Profile]) -> FloatArray:
-    """Every degree of freedom's phase rows, padded in front with empty phases to one length:
-    shape (dofs, phases, 5)."""
-    tables = [_phases(p) for p in profiles]
-    width = max(len(t) for t in tables)
-    out = np.zeros((len(tables), width, 5))
-    for d, t in enumerate(tables):
-        out[d, width - len(t):] = t  # zero-length phases first: they start where the next one does
-    return out
-
-
-def _evaluate(table: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Integrate every degree of freedom's constant-jerk phases to the times ``t`` [s]:
-    position, velocity, acceleration, each (len(t), dofs)."""
-    starts = np.concatenate([np.zeros((table.shape[0], 1)), np.cumsum(table[:, :-1, 0], axis=1)], axis=1)
-    k = (t[None, :, None] >= starts[:, None, :]).sum(axis=2) - 1  # (dofs, samples): the phase each is in
-    d = np.arange(table.shape[0])[:, None]
-    row = table[d, k]  # (dofs, samples, 5)
-    dt = t[None, :] - starts[d, k]
-    j, a0, v0, p0 = row[..., 1], row[..., 2], row[..., 3], row[..., 4]
-    p = p0 + dt * (v0 + dt * (a0 / 2 + dt * j / 6))
-    v = v0 + dt * (a0 + dt * j / 2)
-    a = a0 + dt * j
-    return p.T, v.T, a.T
+        rows += zip(accel.t, accel.j, accel.a, accel.v, accel.p, strict=False)
+    return rows
 
 
 def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_velocity: FloatArray,
@@ -149,7 +146,7 @@ def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_veloc
         inp.target_position = goal.tolist()
         inp.target_velocity = goal_velocity.tolist()
         inp.target_acceleration = [0.0] * n
-        at_rest = not start.moving and not np.any(goal_velocity)
+        at_rest = not start.moving and not any(goal_velocity.tolist())
         if not synchronise:
             inp.synchronization = ruckig.Synchronization.No
         else:
@@ -190,12 +187,29 @@ def _pass_velocity(prev: FloatArray, via: FloatArray, nxt: FloatArray, limits: L
     return np.where(same, np.sign(d2) * np.minimum(speed, 0.5 * limits.velocity), 0.0)
 
 
+class _Calculators(threading.local):
+    def __init__(self) -> None:
+        self.by_size: dict[tuple[int, float], ruckig.Ruckig] = {}
+
+
+_calculators = _Calculators()
+
+
+def _otg(nq: int, dt: float) -> ruckig.Ruckig:
+    """This thread's Ruckig calculator for ``nq`` dofs at cycle ``dt`` (one per thread: it
+    keeps scratch state between calls)."""
+    otg = _calculators.by_size.get((nq, dt))
+    if otg is None:
+        otg = _calculators.by_size[(nq, dt)] = ruckig.Ruckig(nq, dt)
+    return otg
+
+
 def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float,
                dt: float) -> RuckigPath:
     """Through every goal in order, ending at rest on the last; waypoints passed without
     stopping where that is possible."""
     limits = Limits.of(robot, speed)
-    otg = ruckig.Ruckig(robot.nq, dt)
+    otg = _otg(robot.nq, dt)
     segments: list[ruckig.Trajectory] = []
     state = start
     prev = start.position
@@ -212,7 +226,7 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
         last = k == len(goals) - 1
         v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
         traj = _segment(otg, state, goal, v, limits)
-        if np.any(v) and not _within(traj, robot, dt):  # passing through would overshoot: stop there
+        if not last and any(v.tolist()) and not _within(traj, robot, dt):  # passing would overshoot: stop there
             v = np.zeros(robot.nq)
             traj = _segment(otg, state, goal, v, limits)
         segments.append(traj)
@@ -238,7 +252,7 @@ def _brake(otg: ruckig.Ruckig, robot: Robot, start: JointState, dt: float) -> ru
 
 def stop_path(robot: Robot, start: JointState, dt: float) -> RuckigPath:
     """From ``start`` to rest as fast as the (full) limits allow, jerk-limited."""
-    return RuckigPath([_brake(ruckig.Ruckig(robot.nq, dt), robot, start, dt)], robot.nq)
+    return RuckigPath([_brake(_otg(robot.nq, dt), robot, start, dt)], robot.nq)
 
 
 def whole_cycles(duration: float, dt: float) -> int:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -27,7 +28,7 @@ class JointState:
         z = np.zeros_like(position)
         return cls(np.asarray(position, dtype=float), z, z.copy())
 
-    @property
+    @functools.cached_property
     def moving(self) -> bool:
         return any(abs(x) > 1e-9 for x in self.velocity.tolist()) or any(abs(x) > 1e-9
                                                                           for x in self.acceleration.tolist())
@@ -61,11 +62,13 @@ def joint_state(robot: Robot, start: object, field: str = "start") -> JointState
     if not lim.contains(p, tol=1e-9):
         bad = lim.violations(p, tol=1e-9)
         raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=f"{field}.position")
-    for values, limit, what, unit in ((v, lim.velocity, "velocity", "rad/s"),
-                                      (a, lim.acceleration, "acceleration", "rad/s^2")):
+    for given, values, limit, what, unit in ((vel, v, lim.velocity, "velocity", "rad/s"),
+                                             (acc, a, lim.acceleration, "acceleration", "rad/s^2")):
+        if given is None:  # zeros: within any limit
+            continue
         over = np.abs(values) > limit * (1 + 1e-9)
         if over.any():
             i = int(np.argmax(over))
             raise BadRequest(f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
                              f"limit {limit[i]:.4g}", field=f"{field}.{what}")
-    return JointState(np.clip(p, lim.lower, lim.upper), v, a)
+    return JointState(np.minimum(np.maximum(p, lim.lower), lim.upper), v, a)

@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 
 from robots import Robot
 
-from .checks import actuator_commands, check_samples
+from .checks import POSITION_TOL, RATE_TOL, actuator_commands, check_samples
+from .compiled import all_clear
 from .state import JointState
 
 FloatArray = NDArray[np.float64]
@@ -95,18 +96,61 @@ def forward_jerk(acceleration: FloatArray, dt: float) -> FloatArray:
     return j
 
 
+@dataclass(frozen=True)
+class _Gate:
+    """One arm's limits as the compiled gate takes them."""
+
+    C: FloatArray
+    clo: FloatArray
+    chi: FloatArray
+    M: FloatArray
+    b: FloatArray
+    ranges: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+
+    @classmethod
+    def of(cls, robot: Robot) -> _Gate:
+        held = _gates.get(id(robot))
+        if held is not None and held[0] is robot:
+            return held[1]
+        co = robot.limits.coupled
+        gate = cls(np.array([c.coefficients for c in co]).reshape(len(co), robot.nq),
+                   np.array([c.lower for c in co], dtype=float), np.array([c.upper for c in co], dtype=float),
+                   robot.actuators.M, robot.actuators.b, robot.actuators.ranges,
+                   tuple(a.name for a in robot.actuators.actuators), tuple(a.unit for a in robot.actuators.actuators))
+        _gates[id(robot)] = (robot, gate)  # a dict write is atomic: threads at worst build it twice
+        return gate
+
+
+_gates: dict[int, tuple[Robot, _Gate]] = {}
+
+
 def build(robot: Robot, path: str, rate_hz: float, duration: float, times: FloatArray, position: FloatArray,
-          velocity: FloatArray, acceleration: FloatArray, evaluator: Evaluator) -> Trajectory:
-    """Check every sample against every limit, map to actuator commands, and wrap it up."""
-    jerk = forward_jerk(acceleration, 1.0 / rate_hz)
-    check_samples(robot, times, position, velocity, acceleration, jerk)
-    # noise within POSITION_TOL of a box limit is put exactly on it (anything more has raised)
-    position = np.clip(position, robot.limits.lower, robot.limits.upper)
-    commands = actuator_commands(robot, times, position)
-    acts = robot.actuators.actuators
+          velocity: FloatArray, acceleration: FloatArray, evaluator: Evaluator,
+          jerk: FloatArray | None = None) -> Trajectory:
+    """Check every sample against every limit, map to actuator commands, and wrap it up.
+
+    ``jerk``: the forward differences of ``acceleration`` when the caller has them already.
+    The compiled :func:`~planning.compiled.all_clear` passes a trajectory that is clearly
+    inside every limit; anything else takes the exact checks, which raise the first
+    violation (or pass a sample that is inside by less than the compiled margin).
+    """
+    if jerk is None:
+        jerk = forward_jerk(acceleration, 1.0 / rate_hz)
+    lim = robot.limits
+    gate = _Gate.of(robot)
+    # noise within POSITION_TOL of a box limit is put exactly on it (anything more raises)
+    clipped = np.minimum(np.maximum(position, lim.lower), lim.upper)
+    commands = np.empty((len(times), len(gate.b)), dtype=np.int64)
+    if not all_clear(position, velocity, acceleration, jerk, position @ gate.C.T, clipped @ gate.M.T + gate.b,
+                     lim.lower, lim.upper, gate.clo, gate.chi, lim.velocity, lim.acceleration, lim.jerk,
+                     *gate.ranges[:6], POSITION_TOL, RATE_TOL, gate.ranges[6], commands):
+        check_samples(robot, times, position, velocity, acceleration, jerk)
+        commands = actuator_commands(robot, times, clipped)
     return Trajectory(
         robot=robot.name, path=path, joint_names=robot.joint_names,
-        actuator_names=tuple(a.name for a in acts), actuator_units=tuple(a.unit for a in acts),
-        rate_hz=rate_hz, duration=duration, times=times, position=position, velocity=velocity,
+        actuator_names=gate.names, actuator_units=gate.units,
+        rate_hz=rate_hz, duration=duration, times=times, position=clipped, velocity=velocity,
         acceleration=acceleration, jerk=jerk, commands=commands, evaluator=evaluator,
     )

@@ -153,6 +153,13 @@ class ActuatorMap:
     def __len__(self) -> int:
         return len(self.actuators)
 
+    @property
+    def ranges(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]:
+        """What :meth:`commands` computes with, for compiled loops that must agree with it:
+        angle range (lo, hi) [rad], command = rint(gain * angle + bias), command range
+        (lo, hi), and the slack on angle ranges [rad]."""
+        return (self._angle_lo, self._angle_hi, self._gain, self._bias, self._cmd_lo, self._cmd_hi, _TOL)
+
     def angles(self, q: FloatArray) -> FloatArray:
         """Actuator angles [rad] of joint vector(s) ``q``: shape (n,) -> (k,), (m, n) -> (m, k)."""
         return np.asarray(q, dtype=float) @ self.M.T + self.b

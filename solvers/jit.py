@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numba
 
-COMPILED_MODULES = ("activeset", "analytic", "closest", "family", "geometric", "jit", "limits", "pitch")
+COMPILED_MODULES = ("activeset", "analytic", "closest", "family", "geometric", "jit", "limits", "pitch",
+                    "../planning/compiled")  # every file with compiled functions, relative to solvers/
 
 
 def _cache_dir() -> str:

@@ -236,3 +236,63 @@ def test_trajectory_to_dict_is_json_ready() -> None:
     d = json.loads(json.dumps(tr.to_dict()))
     assert d["rate_hz"] == 25 and len(d["commands"][0]) == 5 and d["actuator_units"][0] == "us"
     assert len(d["times"]) == len(d["position"]) == len(tr.times)
+
+
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
+def test_compiled_gate_never_passes_what_the_checks_refuse(name: str) -> None:
+    """``build``'s compiled fast path against the exact checks: every kind of violation, just
+    over and just under each tolerance, gives the same verdict (and the same commands)."""
+    from planning.checks import POSITION_TOL, RATE_TOL
+    from planning.trajectory import build
+
+    arm = robots.load(name)
+    lim = arm.limits
+    rng = np.random.default_rng(11)
+    goal = rng.uniform(lim.lower, lim.upper)
+    while not lim.contains(goal):
+        goal = rng.uniform(lim.lower, lim.upper)
+    tr = plan(arm, arm.neutral, goal)
+    assert np.array_equal(tr.commands, arm.actuators.commands(tr.position))
+
+    def verdict(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, jerk: np.ndarray) -> str:
+        try:
+            planning.check_samples(arm, tr.times, pos, vel, acc, jerk)
+            expected = "ok"
+        except robots.LimitError as e:
+            expected = f"{type(e).__name__} {e.message}"
+        if expected == "ok":
+            try:
+                planning.actuator_commands(arm, tr.times, np.clip(pos, lim.lower, lim.upper))
+            except robots.LimitError as e:
+                expected = f"{type(e).__name__} {e.message}"
+        try:
+            out = build(arm, "joint", tr.rate_hz, tr.duration, tr.times, pos, vel, acc, tr.evaluator, jerk=jerk)
+        except robots.LimitError as e:
+            assert f"{type(e).__name__} {e.message}" == expected
+            return "refused"
+        assert expected == "ok", expected
+        assert np.array_equal(out.commands, arm.actuators.commands(np.clip(pos, lim.lower, lim.upper)))
+        return "ok"
+
+    k, j = len(tr.times) // 2, arm.nq - 1
+    seen = set()
+    for over in (0.5, 2.0):  # half a tolerance over (inside the slack), twice over (a violation)
+        for bound in (lim.upper[j] + over * POSITION_TOL, lim.lower[j] - over * POSITION_TOL):
+            pos = tr.position.copy()
+            pos[k, j] = bound
+            seen.add(verdict(pos, tr.velocity, tr.acceleration, tr.jerk))
+        for which, limit in ((1, lim.velocity[j]), (2, lim.acceleration[j]), (3, lim.jerk[j])):
+            arrays = [tr.position, tr.velocity.copy(), tr.acceleration.copy(), tr.jerk.copy()]
+            arrays[which][k, j] = -limit * (1 + over * RATE_TOL)
+            seen.add(verdict(*arrays))
+    for bad in (np.nan, np.inf):
+        vel = tr.velocity.copy()
+        vel[k, 0] = bad
+        seen.add(verdict(tr.position, vel, tr.acceleration, tr.jerk))
+    for c in lim.coupled:  # a sample moved onto and past a coupled limit
+        pos = tr.position.copy()
+        i = int(np.flatnonzero(c.coefficients)[-1])
+        for over in (0.5, 2.0):
+            pos[k, i] += (c.upper + over * POSITION_TOL - pos[k] @ c.coefficients) / c.coefficients[i]
+            seen.add(verdict(pos, tr.velocity, tr.acceleration, tr.jerk))
+    assert seen == {"ok", "refused"}

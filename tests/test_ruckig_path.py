@@ -30,7 +30,7 @@ def test_sample_equals_at_time(name: str) -> None:
         ]
         for rp in paths:
             ts = np.linspace(0.0, rp.duration, 53)
-            P, V, A = rp.sample(ts)
+            P, V, A, _ = rp.sample(ts)
             for j, t in enumerate(ts):
                 p, v, a = rp.at(float(t))
                 worst = max(worst, float(np.max(np.abs(P[j] - p))), float(np.max(np.abs(V[j] - v))),
@@ -47,7 +47,7 @@ def test_sample_equals_at_time_with_brake_profiles() -> None:
     rp = RuckigPath([seg], 3)
     assert any(p.brake.duration > 0 for seg in rp.segments for p in seg.profiles[0])
     ts = np.linspace(0.0, rp.duration, 101)
-    P, V, A = rp.sample(ts)
+    P, V, A, _ = rp.sample(ts)
     for j, t in enumerate(ts):
         p, v, a = rp.at(float(t))
         assert np.allclose(P[j], p, atol=1e-9) and np.allclose(V[j], v, atol=1e-9) and np.allclose(A[j], a, atol=1e-9)
