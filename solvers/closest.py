@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .activeset import solve_qp
-from .geometric import family_fk, wrap_angle
+from .geometric import family_fk, wrap_angle, wrap_into
 from .jit import jit
 from .limits import limits_ok
 
@@ -158,12 +158,74 @@ def refine_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 
 
 @jit
+def stretched_optimum(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
+                      clo: FloatArray, chi: FloatArray, target: FloatArray, ref: FloatArray,
+                      q_out: FloatArray) -> float:
+    """The closest configuration in closed form, where it provably is one: (error [m]), or -1.
+
+    With no lateral pivot offset, the family's reachable set (any tool pitch, limits aside)
+    is a solid of revolution about the base's z axis whose profile is the shoulder's disc of
+    radius l1 + l2 (+ l3, the hand continuing the line) on either side of the axis. A target
+    outside both discs is nearest the arm stretched straight at it from the nearer disc's
+    centre: that is the unconstrained optimum, so when it lies within every limit it is the
+    constrained one too. Anything else (a lateral offset, a target inside a disc, a
+    stretched arm outside a limit) returns -1 and is left to the iteration.
+    """
+    px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
+    if py != 0.0:
+        return -1.0
+    reach = l1 + l2 + (l3 if J[3] >= 0 else 0.0)
+    x, y, z = target[0], target[1], target[2]
+    h = math.sqrt(x * x + y * y)
+    b = z - pz - oz
+    a_front = h - px - ox
+    a_flip = -h - px - ox
+    d_front = math.sqrt(a_front * a_front + b * b)
+    d_flip = math.sqrt(a_flip * a_flip + b * b)
+    if d_front <= reach or d_flip <= reach:
+        return -1.0
+    n = ref.shape[0]
+    for i in range(n):
+        q_out[i] = min(max(ref[i], lower[i]), upper[i])
+    yaw_j = J[0]
+    if h > 0.0:
+        bearing = math.atan2(y, x)
+        yaw = bearing if d_front <= d_flip else bearing - math.pi
+    else:  # on the yaw axis: every yaw is as near; keep the seed's
+        yaw = q_out[yaw_j]
+    a = a_front if d_front <= d_flip else a_flip
+    ok, q_out[yaw_j] = wrap_into(yaw, lower[yaw_j], upper[yaw_j], ref[yaw_j], 0.0)
+    if not ok:
+        return -1.0
+    ok, q_out[J[1]] = wrap_into(math.atan2(b, a), lower[J[1]], upper[J[1]], ref[J[1]], 0.0)
+    if not ok:
+        return -1.0
+    for k in range(2, 4):  # elbow and wrist straight
+        j = J[k]
+        if j >= 0:
+            ok, q_out[j] = wrap_into(0.0, lower[j], upper[j], ref[j], 0.0)
+            if not ok:
+                return -1.0
+    if not limits_ok(q_out, lower, upper, C, clo, chi, 0.0):
+        return -1.0
+    p = np.empty(3)
+    family_fk(P, J, q_out, p)
+    return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
+
+
+@jit
 def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
                    clo: FloatArray, chi: FloatArray, target: FloatArray, pitch: float, w2: float,
                    ref: FloatArray, atlas_q: FloatArray, atlas_p: FloatArray, n_atlas: int,
                    q_out: FloatArray) -> tuple[float, float, int]:
-    """The best of :func:`refine_family` from ``ref`` (if within limits) and the ``n_atlas``
-    atlas configurations whose tool points are nearest the target: (error, pitch error, iterations)."""
+    """The stretched arm where it is provably the answer (:func:`stretched_optimum`, free
+    pitch only); else the best of :func:`refine_family` from ``ref`` (if within limits) and
+    the ``n_atlas`` atlas configurations whose tool points are nearest the target:
+    (error, pitch error, iterations)."""
+    if w2 == 0.0:
+        err = stretched_optimum(P, J, lower, upper, C, clo, chi, target, ref, q_out)
+        if err >= 0.0:
+            return err, 0.0, 0
     n = ref.shape[0]
     order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
     dist = np.full(n_atlas, np.inf)
