@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import robots
+from clients import view
 from robots import ArmdError, Robot
 
 
@@ -393,6 +394,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot")
     _client_args(p)
     p.set_defaults(func=cmd_stop)
+    view.register(sub)
     return parser
 
 
