@@ -400,10 +400,11 @@ def build_parser() -> argparse.ArgumentParser:
     _client_args(p)
     p.set_defaults(func=cmd_stop)
 
-    from clients import demo, workspace
+    from clients import demo, view, workspace
 
     workspace.register(sub)
     demo.register(sub)
+    view.register(sub)
     return parser
 
 
