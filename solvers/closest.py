@@ -158,57 +158,137 @@ def refine_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 
 
 @jit
-def stretched_optimum(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                      clo: FloatArray, chi: FloatArray, target: FloatArray, ref: FloatArray,
-                      q_out: FloatArray) -> float:
-    """The closest configuration in closed form, where it provably is one: (error [m]), or -1.
+def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
+                clo: FloatArray, chi: FloatArray, target: FloatArray, ref: FloatArray, q_out: FloatArray) -> float:
+    """The closest configuration within the box limits, any tool pitch, by enumerating every
+    stationary point: (error [m]), or -1 where this does not apply.
 
-    With no lateral pivot offset, the family's reachable set (any tool pitch, limits aside)
-    is a solid of revolution about the base's z axis whose profile is the shoulder's disc of
-    radius l1 + l2 (+ l3, the hand continuing the line) on either side of the axis. A target
-    outside both discs is nearest the arm stretched straight at it from the nearer disc's
-    centre: that is the unconstrained optimum, so when it lies within every limit it is the
-    constrained one too. Anything else (a lateral offset, a target inside a disc, a
-    stretched arm outside a limit) returns -1 and is left to the iteration.
+    With no lateral pivot offset, the best yaw for a given arm pose is the yaw within limits
+    nearest the target's bearing (tool in front of the axis) or its opposite (behind), so the
+    optimum uses one of those two. For the planar chain (shoulder, elbow, wrist angles, each in
+    a box), the optimum lies in the relative interior of one face of the box (each joint free,
+    or at its lower or upper bound), where every free joint is stationary: its origin, the
+    tool point and the target are collinear. All free joints' origins and the tool point then
+    lie on the line from the first free joint's origin to the target, each free joint turning
+    the rigid chain after it onto that line, pointing along it or back. Every face and both
+    directions per free joint, for both yaws: 2 x 4^3 candidates at most, each in closed
+    form. The best one within limits is the optimum. Returns -1 (the iteration answers) for
+    a lateral pivot offset, a degenerate chain, a coupled limit the best one breaks, and a
+    yaw held at a limit with the target's projection on the arm's plane within reach (the
+    tool could then sit exactly on the projection, a case the collinearity does not cover).
     """
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
     if py != 0.0:
         return -1.0
-    reach = l1 + l2 + (l3 if J[3] >= 0 else 0.0)
+    nj = 3 if J[3] >= 0 else 2
+    links = np.array([l1, l2, l3])
     x, y, z = target[0], target[1], target[2]
     h = math.sqrt(x * x + y * y)
-    b = z - pz - oz
-    a_front = h - px - ox
-    a_flip = -h - px - ox
-    d_front = math.sqrt(a_front * a_front + b * b)
-    d_flip = math.sqrt(a_flip * a_flip + b * b)
-    if d_front <= reach or d_flip <= reach:
-        return -1.0
     n = ref.shape[0]
+    q = np.empty(n)
     for i in range(n):
-        q_out[i] = min(max(ref[i], lower[i]), upper[i])
+        q[i] = min(max(ref[i], lower[i]), upper[i])
     yaw_j = J[0]
+    yaws = np.empty(2)
+    n_yaws = 1
+    bearing = 0.0
     if h > 0.0:
         bearing = math.atan2(y, x)
-        yaw = bearing if d_front <= d_flip else bearing - math.pi
-    else:  # on the yaw axis: every yaw is as near; keep the seed's
-        yaw = q_out[yaw_j]
-    a = a_front if d_front <= d_flip else a_flip
-    ok, q_out[yaw_j] = wrap_into(yaw, lower[yaw_j], upper[yaw_j], ref[yaw_j], 0.0)
-    if not ok:
-        return -1.0
-    ok, q_out[J[1]] = wrap_into(math.atan2(b, a), lower[J[1]], upper[J[1]], ref[J[1]], 0.0)
-    if not ok:
-        return -1.0
-    for k in range(2, 4):  # elbow and wrist straight
-        j = J[k]
-        if j >= 0:
-            ok, q_out[j] = wrap_into(0.0, lower[j], upper[j], ref[j], 0.0)
-            if not ok:
-                return -1.0
-    if not limits_ok(q_out, lower, upper, C, clo, chi, 0.0):
-        return -1.0
+        for side in range(2):
+            aim = bearing + side * math.pi
+            ok, v = wrap_into(aim, lower[yaw_j], upper[yaw_j], aim, 0.0)
+            if not ok:  # the aim is outside the yaw range: the nearer end, by angle
+                dlo = abs(wrap_angle(lower[yaw_j] - aim))
+                dhi = abs(wrap_angle(upper[yaw_j] - aim))
+                v = lower[yaw_j] if dlo <= dhi else upper[yaw_j]
+            yaws[side] = v
+        n_yaws = 2
+    else:  # on the yaw axis every yaw is as near: keep the seed's
+        yaws[0] = q[yaw_j]
+    cu, cz = px + ox, pz + oz
+    best = 1e300
     p = np.empty(3)
+    theta = np.empty(3)
+    opt = np.empty(3, dtype=np.int64)
+    options = 4 ** nj
+    reach = l1 + l2 + (l3 if nj == 3 else 0.0)
+    for yi in range(n_yaws):
+        psi = yaws[yi]
+        tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0  # the target projected on the arm's plane
+        lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
+        if lateral > 1e-12 and (tu - cu) ** 2 + (z - cz) ** 2 <= reach * reach:
+            return -1.0  # the yaw is held at a limit and the projection may be reached: not enumerated here
+        for code in range(options):
+            # joint k: option 0/1 free (pointing along the line / back), 2 at its lower, 3 at its upper bound
+            c = code
+            for k in range(nj):
+                opt[k] = c % 4
+                c //= 4
+            first = -1
+            phi = 0.0
+            ou, oz_ = cu, cz
+            for k in range(nj):
+                o = opt[k]
+                if o >= 2:
+                    j = J[k + 1]
+                    theta[k] = lower[j] if o == 2 else upper[j]
+                    if first < 0:
+                        phi += theta[k]
+                        ou += links[k] * math.cos(phi)
+                        oz_ += links[k] * math.sin(phi)
+                elif first < 0:
+                    first = k
+            if first >= 0:
+                du, dz = tu - ou, z - oz_
+                if du * du + dz * dz < 1e-24:
+                    return -1.0
+                alpha = math.atan2(dz, du)
+                feasible = True
+                prev = phi  # absolute angle of the link before joint `first`
+                k = first
+                while k < nj:
+                    o = opt[k]
+                    j = J[k + 1]
+                    if o >= 2:
+                        prev += theta[k]
+                        k += 1
+                        continue
+                    # the rigid chain from joint k to the next free joint (or the tool), with phi_k = 0
+                    wu, wz, g = 0.0, 0.0, 0.0
+                    m = k
+                    while True:
+                        wu += links[m] * math.cos(g)
+                        wz += links[m] * math.sin(g)
+                        m += 1
+                        if m >= nj or opt[m] < 2:
+                            break
+                        g += theta[m]
+                    if wu * wu + wz * wz < 1e-24:
+                        return -1.0
+                    phik = alpha + o * math.pi - math.atan2(wz, wu)
+                    ok, v = wrap_into(phik - prev, lower[j], upper[j], q[j], 0.0)
+                    if not ok:
+                        feasible = False
+                        break
+                    theta[k] = v
+                    prev += v
+                    k += 1
+                if not feasible:
+                    continue
+            eu, ez, a = cu, cz, 0.0
+            for k in range(nj):
+                a += theta[k]
+                eu += links[k] * math.cos(a)
+                ez += links[k] * math.sin(a)
+            d2 = (eu - tu) ** 2 + (ez - z) ** 2 + lateral * lateral
+            if d2 < best - 1e-30:
+                best = d2
+                q[yaw_j] = psi
+                for k in range(nj):
+                    q[J[k + 1]] = theta[k]
+                q_out[:] = q
+    if best >= 1e300 or not limits_ok(q_out, lower, upper, C, clo, chi, 0.0):
+        return -1.0
     family_fk(P, J, q_out, p)
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
@@ -218,12 +298,12 @@ def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatAr
                    clo: FloatArray, chi: FloatArray, target: FloatArray, pitch: float, w2: float,
                    ref: FloatArray, atlas_q: FloatArray, atlas_p: FloatArray, n_atlas: int,
                    q_out: FloatArray) -> tuple[float, float, int]:
-    """The stretched arm where it is provably the answer (:func:`stretched_optimum`, free
-    pitch only); else the best of :func:`refine_family` from ``ref`` (if within limits) and
+    """The enumerated optimum where it applies (:func:`closest_box`, free pitch only); else
+    the best of :func:`refine_family` from ``ref`` (if within limits) and
     the ``n_atlas`` atlas configurations whose tool points are nearest the target:
     (error, pitch error, iterations)."""
     if w2 == 0.0:
-        err = stretched_optimum(P, J, lower, upper, C, clo, chi, target, ref, q_out)
+        err = closest_box(P, J, lower, upper, C, clo, chi, target, ref, q_out)
         if err >= 0.0:
             return err, 0.0, 0
     n = ref.shape[0]
