@@ -180,7 +180,7 @@ def _pose(arm: _Arm, q: FloatArray) -> tuple[FloatArray, float]:
     g = arm.robot.geometry
     assert g is not None
     ql = q.tolist()
-    pitch = 0.0 if g.level else math.remainder(sum(ql[j] for j in fp.pitch_joints), TWO_PI)
+    pitch = 0.0 if g.level else math.remainder(sum(map(ql.__getitem__, fp.pitch_joints)), TWO_PI)
     return reached, pitch
 
 
