@@ -23,7 +23,7 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from robots import ArmdError, Robot
+from robots import ArmdError, BadRequest, Robot
 
 from .state import JointState
 
@@ -155,13 +155,24 @@ def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_veloc
         else:
             inp.synchronization = ruckig.Synchronization.Phase if at_rest else ruckig.Synchronization.Time
     traj = ruckig.Trajectory(n)
+    calculate(otg, inp, traj)
+    return traj
+
+
+def calculate(otg: ruckig.Ruckig, inp: ruckig.InputParameter, traj: ruckig.Trajectory) -> None:
+    """``otg.calculate``, its failures turned into armd's errors: a motion too slow for Ruckig
+    to time is the caller's :class:`BadRequest` (``speed``), anything else a :class:`PlannerError`."""
     try:
         result = otg.calculate(inp, traj)
     except RuntimeError as e:  # Ruckig raises on input it cannot handle
         raise PlannerError(f"Ruckig rejected the segment: {e}") from None
+    except ValueError as e:  # a result code the binding has no name for: "-101 is not a valid Result"
+        if str(e).startswith("-101 "):  # ErrorTrajectoryDuration: longer than Ruckig's numerical range
+            raise BadRequest("the motion would last longer than Ruckig can time (about 7,600 s): raise speed",
+                             field="speed") from None
+        raise PlannerError(f"Ruckig could not compute the segment: {e}") from None
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlannerError(f"Ruckig could not compute the segment: {result}")
-    return traj
 
 
 def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
