@@ -324,7 +324,7 @@ def _limit_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--deadline", type=float, default=d.deadline, metavar="SECONDS",
                    help=f"time allowed per request from its arrival, queue included (default {d.deadline:g})")
     g.add_argument("--workers", type=int, default=4, metavar="N",
-                   help="threads serving requests (default 4)")
+                   help="threads serving requests (default 4; stop has two of its own)")
 
 
 def _client_args(p: argparse.ArgumentParser) -> None:

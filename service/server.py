@@ -14,7 +14,8 @@ One queryable on ``<prefix>/**`` takes every request, so a request for an unknow
 verb gets an error reply too. It is declared ``complete``: with several replicas on one
 network, a query (target ``BEST_MATCHING``, the default) reaches exactly one of them.
 Requests are served on a thread pool (Zenoh's own threads
-only hand them over); every request gets exactly one reply, an error reply for anything
+only hand them over), ``stop`` on a pool of its own, so that a queue of IK batches and plans
+cannot delay it (measured by bench/load.py); every request gets exactly one reply, an error reply for anything
 that goes wrong, and an unexpected exception is logged with its traceback and answered
 ``internal``: the service keeps serving.
 
@@ -64,6 +65,7 @@ class Service:
         self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
                                  self._publish_gripper)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
+        self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
                                                             congestion_control=zenoh.CongestionControl.BLOCK)
@@ -94,8 +96,10 @@ class Service:
         arrived = time.monotonic()  # the deadline counts from here, queue included
         with self._lock:
             self._in_flight += 1
+        key = str(query.key_expr)
+        pool = self._stops if key.endswith("/stop") and key.count("/") == self.prefix.count("/") + 2 else self._pool
         try:
-            self._pool.submit(self._serve, query, arrived)
+            pool.submit(self._serve, query, arrived)
         except RuntimeError:  # the pool is shut down: the service is closing
             with self._lock:
                 self._in_flight -= 1
@@ -229,4 +233,5 @@ class Service:
             except Exception:
                 log.debug("undeclare failed", exc_info=True)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        self._stops.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())

@@ -210,3 +210,21 @@ def test_a_request_queued_past_its_deadline_is_not_worked_on(slow: Served) -> No
     assert json.loads(replies[0].err.payload.to_bytes())["stage"] == "working"
     assert slow.ask("fk", {"q": [0, 1, -1]})[0] == "ok"  # and then it serves as before
     assert slow.service.stats()["late"] == late_before + 2
+
+
+def test_stop_does_not_wait_behind_the_queue(slow: Served) -> None:
+    """The one worker is busy for a second and more requests queue behind it: a stop is
+    answered (and published) while the busy request is still being worked on."""
+    busy = slow.session.get(f"{slow.prefix}/{ARM}/ik", payload=json.dumps(unreachable_batch(20_000)).encode(),
+                            timeout=30.0)
+    wait_for(lambda: slow.service.stats()["in_flight"] >= 1, what="the batch to arrive")
+    queued = [slow.session.get(f"{slow.prefix}/{ARM}/fk", payload=b'{"q": [0, 1, -1]}', timeout=30.0)
+              for _ in range(3)]
+    before = len(slow.published)
+    kind, r = slow.ask("stop", {})
+    assert kind == "ok", r
+    assert busy.try_recv() is None  # the batch has not been answered yet: the stop did not wait for it
+    wait_for(lambda: len(slow.published) > before, what="the stop trajectory")
+    assert slow.published[-1]["kind"] == "stop"
+    assert len(list(busy)) == 1 and all(len(list(q)) == 1 for q in queued)
+    wait_for(lambda: slow.service.stats()["in_flight"] == 0, what="an idle service")
