@@ -16,6 +16,7 @@ import pytest
 import zenoh
 
 import robots
+from clients import ArmClient, ServiceError
 from clients.sim import SimAdapter
 from robots import BadRequest
 from service.protocol import Limits
@@ -166,6 +167,14 @@ def test_a_request_may_ask_for_a_deadline(tight: Served) -> None:
     # a deadline no request can meet: it passes while the request is handed to a worker
     kind, r = tight.ask("fk", {"q": [0, 1, -1], "deadline": 1e-9})
     assert kind == "err" and r["code"] == "deadline" and r["stage"] == "queued" and r["deadline"] == 1e-9
+
+
+def test_arm_client_sends_its_deadline(router: str, tight: Served) -> None:
+    with ArmClient(router, prefix="tight", deadline=1e-9) as c:
+        with pytest.raises(ServiceError) as e:
+            c.fk(ARM, [0, 1, -1])
+        assert e.value.code == "deadline" and e.value.fields["stage"] == "queued"
+        assert c.call(f"{ARM}/fk", {"q": [0, 1, -1]}, deadline=5.0)["within_limits"]  # one call's own deadline
 
 
 def test_stop_is_never_refused_for_lateness(tight: Served) -> None:
