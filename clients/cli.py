@@ -116,16 +116,25 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     import zenoh
 
+    from service.protocol import Limits
     from service.server import Service
     from service.zconfig import network_config
 
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    limits = Limits(max_payload_bytes=args.max_payload, max_batch=args.max_batch, max_depth=args.max_depth,
+                    max_waypoints=args.max_waypoints, max_samples=args.max_samples, deadline=args.deadline)
+    if args.workers < 1:
+        raise robots.BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
     arms = _all_robots(args.robots_dir)
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config)
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(conf)
-    service = Service(session, arms, prefix=args.prefix)
+    try:
+        service = Service(session, arms, prefix=args.prefix, limits=limits, workers=args.workers)
+    except BaseException:
+        session.close()  # a Zenoh session left open would keep the process from exiting
+        raise
     sims = []
     if args.sim:
         from clients.sim import SimAdapter
@@ -302,6 +311,27 @@ def cmd_stop(args: argparse.Namespace) -> int:
     return 0
 
 
+def _limit_args(p: argparse.ArgumentParser) -> None:
+    from service.protocol import Limits
+
+    d = Limits()
+    g = p.add_argument_group("limits", "what one request may ask (docs/reliability.md)")
+    g.add_argument("--max-payload", type=int, default=d.max_payload_bytes, metavar="BYTES",
+                   help=f"largest request payload (default {d.max_payload_bytes:,})")
+    g.add_argument("--max-batch", type=int, default=d.max_batch, metavar="N",
+                   help=f"most targets in one IK batch (default {d.max_batch:,})")
+    g.add_argument("--max-waypoints", type=int, default=d.max_waypoints, metavar="N",
+                   help=f"most via points in one plan or move (default {d.max_waypoints})")
+    g.add_argument("--max-samples", type=int, default=d.max_samples, metavar="N",
+                   help=f"most samples in one trajectory (default {d.max_samples:,})")
+    g.add_argument("--max-depth", type=int, default=d.max_depth, metavar="N",
+                   help=f"deepest JSON nesting of a request (default {d.max_depth})")
+    g.add_argument("--deadline", type=float, default=d.deadline, metavar="SECONDS",
+                   help=f"time allowed per request from its arrival, queue included (default {d.deadline:g})")
+    g.add_argument("--workers", type=int, default=4, metavar="N",
+                   help="threads serving requests (default 4; stop has two of its own)")
+
+
 def _client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="default tcp/127.0.0.1:7447")
     p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
@@ -346,6 +376,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="store_true", help="log one line per request")
     p.add_argument("--sim", action="store_true", help="also run a simulated arm (adapter) for every arm")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (with --sim)")
+    _limit_args(p)
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("adapter", help="run a hardware adapter daemon for one arm")

@@ -27,7 +27,8 @@ JSON = zenoh.Encoding.APPLICATION_JSON
 
 class ServiceError(ArmdError):
     """The service answered with an error: ``code`` is the protocol's (``bad_request``,
-    ``unknown_robot``, ``unreachable``, ``limit``, ``no_adapter``, ``too_large``, ``internal`` ...)."""
+    ``unknown_robot``, ``unreachable``, ``limit``, ``no_adapter``, ``too_large``, ``deadline``,
+    ``internal`` ...)."""
 
     def __init__(self, reply: dict[str, Any]) -> None:
         fields = {k: v for k, v in reply.items() if k not in ("code", "message")}
@@ -104,10 +105,12 @@ class ArmClient:
         config: a Zenoh configuration file instead (credentials, TLS ...).
         prefix: the service's key prefix.
         timeout: seconds to wait for a reply [s].
+        deadline: ask the service to give up on each request after this many seconds [s]
+            (answered ``deadline``, nothing done); the service's own limit applies if shorter.
     """
 
     def __init__(self, connect: str | Sequence[str] | None = None, *, config: str | None = None,
-                 prefix: str = "armd", timeout: float = 5.0) -> None:
+                 prefix: str = "armd", timeout: float = 5.0, deadline: float | None = None) -> None:
         endpoints = [connect] if isinstance(connect, str) else (list(connect) if connect else None)
         try:
             self.session = zenoh.open(client_config(endpoints, config))
@@ -116,6 +119,7 @@ class ArmClient:
             raise NoReply(f"cannot reach an armd network at {where}: is `armd serve` running? ({e})") from None
         self.prefix = prefix.rstrip("/")
         self.timeout = timeout
+        self.deadline = deadline
 
     def __enter__(self) -> ArmClient:
         return self
@@ -128,10 +132,15 @@ class ArmClient:
 
     # -- the verbs ---------------------------------------------------------------------------
 
-    def call(self, key: str, request: dict[str, Any] | None = None, timeout: float | None = None) -> dict[str, Any]:
+    def call(self, key: str, request: dict[str, Any] | None = None, timeout: float | None = None,
+             deadline: float | None = None) -> dict[str, Any]:
         """One request to ``<prefix>/<key>``: the reply object, or :class:`ServiceError` /
-        :class:`NoReply`."""
-        payload = encode(request or {})
+        :class:`NoReply`. ``deadline`` [s]: for this request, instead of the client's."""
+        request = dict(request or {})
+        asked = self.deadline if deadline is None else deadline
+        if asked is not None:
+            request["deadline"] = asked
+        payload = encode(request)
         wait = self.timeout if timeout is None else timeout
         for _attempt in range(2):  # a replica that died with the query in flight: ask once more
             for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait):

@@ -15,3 +15,15 @@ class PlanRejected(ArmdError):
 
     def __init__(self, message: str, **fields: Any) -> None:
         super().__init__(message, **fields)
+
+
+class TrajectoryTooLong(ArmdError):
+    """The trajectory would have more samples than the caller allows (``size``, ``limit``):
+    nothing is sampled. A lower ``rate_hz`` or a higher ``speed`` makes fewer."""
+
+    code = "too_large"
+
+    def __init__(self, samples: int, limit: int, duration: float, rate_hz: float) -> None:
+        super().__init__(f"the trajectory would have {samples} samples ({duration:.1f} s at {rate_hz:g} Hz); "
+                         f"this service allows at most {limit}: raise speed or lower rate_hz",
+                         size=samples, limit=limit, field="speed")

@@ -16,6 +16,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import ruckig
@@ -24,8 +25,8 @@ from numpy.typing import NDArray
 from robots import Robot
 from solvers import solve_ik, solve_ik_batch
 
-from .errors import PlanRejected
-from .ruckig_path import RuckigPath, whole_cycles
+from .errors import PlanRejected, TrajectoryTooLong
+from .ruckig_path import RuckigPath, calculate, whole_cycles
 from .state import JointState
 from .trajectory import Evaluator, forward_jerk
 
@@ -145,7 +146,7 @@ def _profile(length: float, v: float, a: float, j: float, dt: float) -> ruckig.T
     inp.max_velocity, inp.max_acceleration, inp.max_jerk = [v], [a], [j]
     inp.duration_discretization = ruckig.DurationDiscretization.Discrete
     traj = ruckig.Trajectory(1)
-    otg.calculate(inp, traj)
+    calculate(otg, inp, traj)
     return traj
 
 
@@ -158,8 +159,14 @@ def _derivatives(P: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
 
 
 def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: float | None, speed: float,
-                 rate_hz: float) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
-    """(duration, times, position, velocity, acceleration, evaluator) of the line."""
+                 rate_hz: float, *, max_samples: int | None = None, check: Callable[[], None] | None = None,
+                 ) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
+    """(duration, times, position, velocity, acceleration, evaluator) of the line.
+
+    ``max_samples``: refuse (:class:`TrajectoryTooLong`) a timing with more samples, before
+    sampling it. ``check``: called between the passes (each an IK batch over every sample);
+    whatever it raises abandons the line.
+    """
     if start.moving:
         raise PlanRejected("a line starts with the arm at rest: stop first, or plan a joint path", field="start")
     line = LinePath(robot, start, goal, goal_pitch)
@@ -168,8 +175,12 @@ def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: 
     v, a, j = _path_limits(robot, ss, qs, speed)
     lim = robot.limits
     for _ in range(SLOWDOWNS):
+        if check is not None:
+            check()
         prof = _profile(line.length, v, a, j, dt)
         k = whole_cycles(prof.duration, dt)
+        if max_samples is not None and k + 1 > max_samples:
+            raise TrajectoryTooLong(k + 1, max_samples, k * dt, rate_hz)
         times = np.arange(k + 1, dtype=float) * dt
         svals = RuckigPath([prof], 1).sample(times)[0][:, 0]
         nearest = np.clip(np.searchsorted(ss, svals), 0, len(ss) - 1)  # seed each sample from the grid

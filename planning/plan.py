@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from robots import BadRequest, Robot
 
+from .errors import TrajectoryTooLong
 from .goal import goal_configuration, goal_point
 from .line import line_samples
 from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles
@@ -42,6 +43,8 @@ def plan(
     speed: float = 1.0,
     rate_hz: float | None = None,
     via: Sequence[object] = (),
+    max_samples: int | None = None,
+    check: Callable[[], None] | None = None,
 ) -> Trajectory:
     """A jerk-limited trajectory from ``start`` to ``goal``, checked against every limit.
 
@@ -58,10 +61,15 @@ def plan(
             ``[controller] rate_hz``, else 50.
         via: waypoints (same forms as ``goal``) passed through in order, without stopping
             where possible (joint paths only).
+        max_samples: the most samples the trajectory may have (None: no bound); checked
+            once its duration is known, before it is sampled.
+        check: called between the planning stages (each IK, each timing pass); whatever it
+            raises abandons the plan. The service's per-request deadline uses it.
 
     Raises:
         BadRequest: malformed input. PlanRejected: a goal out of reach, a line that leaves the
         reachable space or needs a branch flip. LimitError: a sample would break a limit.
+        TrajectoryTooLong: more than ``max_samples`` samples.
     """
     rate = _rate(robot, rate_hz)
     spd = _speed(speed)
@@ -72,7 +80,8 @@ def plan(
         if via:
             raise BadRequest("a line goes straight to its goal: via points are for joint paths", field="via")
         point, pitch = goal_point(robot, goal, s.position)
-        duration, times, P, V, A, evaluate = line_samples(robot, s, point, pitch, spd, rate)
+        duration, times, P, V, A, evaluate = line_samples(robot, s, point, pitch, spd, rate,
+                                                          max_samples=max_samples, check=check)
         return build(robot, "line", rate, duration, times, P, V, A, evaluate)
     if isinstance(via, (str, bytes)) or not isinstance(via, Sequence):
         raise BadRequest("via must be a list of goals", field="via")
@@ -82,8 +91,12 @@ def plan(
         q = goal_configuration(robot, g, seed, field="goal" if k == len(via) else f"via[{k}]")
         goals.append(q)
         seed = q
+        if check is not None:
+            check()
     rpath = joint_path(robot, s, goals, spd, 1.0 / rate)
-    return _sampled(robot, "joint", rate, rpath)
+    if check is not None:
+        check()
+    return _sampled(robot, "joint", rate, rpath, max_samples)
 
 
 def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None) -> Trajectory:
@@ -93,9 +106,11 @@ def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None) -> T
     return _sampled(robot, "stop", rate, stop_path(robot, s, 1.0 / rate))
 
 
-def _sampled(robot: Robot, kind: str, rate: float, rpath: RuckigPath) -> Trajectory:
+def _sampled(robot: Robot, kind: str, rate: float, rpath: RuckigPath, max_samples: int | None = None) -> Trajectory:
     dt = 1.0 / rate
     k = whole_cycles(rpath.duration, dt)
+    if max_samples is not None and k + 1 > max_samples:
+        raise TrajectoryTooLong(k + 1, max_samples, k * dt, rate)
     times = np.arange(k + 1, dtype=float) * dt
     P, V, A, J = rpath.sample(times, dt)
     return build(robot, kind, rate, float(times[-1]), times, P, V, A, rpath.at, jerk=J)

@@ -25,7 +25,7 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from robots import ArmdError, Robot
+from robots import ArmdError, BadRequest, Robot
 
 from .compiled import evaluate
 from .state import JointState
@@ -152,13 +152,24 @@ def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_veloc
         else:
             inp.synchronization = ruckig.Synchronization.Phase if at_rest else ruckig.Synchronization.Time
     traj = ruckig.Trajectory(n)
+    calculate(otg, inp, traj)
+    return traj
+
+
+def calculate(otg: ruckig.Ruckig, inp: ruckig.InputParameter, traj: ruckig.Trajectory) -> None:
+    """``otg.calculate``, its failures turned into armd's errors: a motion too slow for Ruckig
+    to time is the caller's :class:`BadRequest` (``speed``), anything else a :class:`PlannerError`."""
     try:
         result = otg.calculate(inp, traj)
-    except RuntimeError as e:  # Ruckig raises on input it cannot handle
+    except (RuntimeError, ruckig.RuckigError) as e:  # Ruckig raises on input it cannot handle
         raise PlannerError(f"Ruckig rejected the segment: {e}") from None
+    except ValueError as e:  # a result code the binding has no name for: "-101 is not a valid Result"
+        if str(e).startswith("-101 "):  # ErrorTrajectoryDuration: longer than Ruckig's numerical range
+            raise BadRequest("the motion would last longer than Ruckig can time (about 7,600 s): raise speed",
+                             field="speed") from None
+        raise PlannerError(f"Ruckig could not compute the segment: {e}") from None
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlannerError(f"Ruckig could not compute the segment: {result}")
-    return traj
 
 
 def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
@@ -215,8 +226,17 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
     prev = start.position
     if start.moving:  # from a moving state: straight on if that stays inside the limits
         first_v = np.zeros(robot.nq) if len(goals) == 1 else _pass_velocity(prev, goals[0], goals[1], limits)
-        direct = _segment(otg, start, goals[0], first_v, limits)
-        if not _within(direct, robot, dt):  # else brake to rest first, then go (never through a limit)
+        faster = bool(np.any(np.abs(start.velocity) > limits.velocity)
+                      or np.any(np.abs(start.acceleration) > limits.acceleration))
+        try:
+            direct: ruckig.Trajectory | None = _segment(otg, start, goals[0], first_v, limits)
+        except (PlannerError, BadRequest):
+            if not faster:
+                raise
+            # moving faster than ``speed`` allows, and braking within the slowed limits is more
+            # than Ruckig can time (at speed 0.01, hours): brake with the full limits instead
+            direct = None
+        if direct is None or not _within(direct, robot, dt):  # brake to rest first, then go (never through a limit)
             brake = _brake(otg, robot, start, dt)
             segments.append(brake)
             p, _, _ = brake.at_time(brake.duration)

@@ -1,12 +1,16 @@
-"""The verbs: each takes a robot and a validated request object, returns a reply object.
+"""The verbs: each takes a robot, a validated request object and its deadline, returns a
+reply object.
 
 No Zenoh here: :mod:`service.server` calls these and turns what they raise into error
 replies. Every argument is checked (unknown fields refused) before anything is solved,
-planned or published.
+planned or published. Long work checks the deadline between its stages, and a verb that
+publishes checks it once more just before publishing: a request that overran has changed
+nothing. Once published, a command is answered with success, whatever the clock says.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -15,6 +19,7 @@ import planning
 import solvers
 from robots import BadRequest, Robot
 
+from .deadline import Deadline
 from .protocol import PROTOCOL_VERSION, Limits, NoAdapter, allowed, flag, number
 from .state import StateBook
 
@@ -34,12 +39,12 @@ class Handlers:
 
     # -- read-only verbs -------------------------------------------------------------------
 
-    def robots(self, req: Mapping[str, Any]) -> dict[str, Any]:
+    def robots(self, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         allowed(req)
         arms = [{"name": a.name, "title": a.title, "joints": list(a.joint_names)} for a in self.arms.values()]
-        return {"protocol": PROTOCOL_VERSION, "robots": arms}
+        return {"protocol": PROTOCOL_VERSION, "robots": arms, "limits": dataclasses.asdict(self.limits)}
 
-    def info(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def info(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         allowed(req)
         known = self.book.current(arm)
         out = arm.describe()
@@ -47,7 +52,7 @@ class Handlers:
                     "state": {"source": known.source, "moving": known.moving, **known.state.to_dict()}})
         return out
 
-    def fk(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def fk(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         allowed(req, "q")
         if "q" not in req:
             raise BadRequest("fk needs 'q', the joint vector [rad]", field="q")
@@ -56,7 +61,7 @@ class Handlers:
         return {"q": q.tolist(), "position": pose.position.tolist(), "pitch": pose.pitch,
                 "within_limits": arm.limits.contains(q)}
 
-    def ik(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def ik(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         if "targets" in req:
             allowed(req, "targets", "approach", "seeds", "tolerance")
             targets = req["targets"]
@@ -67,7 +72,7 @@ class Handlers:
             tol = number(req, "tolerance", solvers.DEFAULT_TOLERANCE)
             assert tol is not None
             return solvers.solve_ik_batch(arm, targets, approach=req.get("approach"), seeds=req.get("seeds"),
-                                          tolerance=tol).to_dict()
+                                          tolerance=tol, check=deadline.check).to_dict()
         allowed(req, "target", "approach", "seed", "tolerance", "quantise")
         if "target" not in req:
             raise BadRequest("ik needs 'target' ([x, y, z] in metres, or a sensor reading), or 'targets'",
@@ -77,26 +82,28 @@ class Handlers:
         return solvers.solve_ik(arm, req["target"], approach=req.get("approach"), seed=req.get("seed"),
                                 tolerance=tol, quantise=flag(req, "quantise")).to_dict()
 
-    def plan(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def plan(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         allowed(req, "start", "goal", "path", "speed", "rate_hz", "via")
-        traj = self._plan(arm, req, req.get("start"))
+        traj = self._plan(arm, req, req.get("start"), deadline)
         return traj.to_dict()
 
     # -- verbs that move the arm --------------------------------------------------------------
 
-    def move(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def move(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         allowed(req, "goal", "path", "speed", "rate_hz", "via")
         known = self.book.current(arm)
-        traj = self._plan(arm, req, known.state)  # a bad request is told so, adapter or not
+        traj = self._plan(arm, req, known.state, deadline)  # a bad request is told so, adapter or not
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
         msg = self._message(arm, traj, "move")
+        deadline.check()  # the last moment to give up: after this the arm moves
         self.publish(arm, msg)
         self.book.commanded(arm.name, traj)
         return {"id": msg["id"], "path": traj.path, "duration": traj.duration, "samples": len(traj.times),
                 "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(), "start_source": known.source}
 
-    def stop(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def stop(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """Never refused for lateness: a stop is published however long it waited."""
         allowed(req)
         known = self.book.current(arm)
         traj = planning.plan_stop(arm, known.state)
@@ -106,7 +113,7 @@ class Handlers:
         return {"id": msg["id"], "duration": traj.duration, "adapters": self.adapters(arm),
                 "rest": traj.position[-1].tolist()}
 
-    def gripper(self, arm: Robot, req: Mapping[str, Any]) -> dict[str, Any]:
+    def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between: published to the adapters."""
         allowed(req, "opening")
         if arm.gripper is None:
@@ -117,12 +124,13 @@ class Handlers:
         pulse = arm.gripper.pulse(opening)  # validates the range
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would move the gripper", robot=arm.name)
+        deadline.check()
         self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": uuid.uuid4().hex})
         return {"opening": opening, "pulse": pulse}
 
     # -- helpers ----------------------------------------------------------------------------
 
-    def _plan(self, arm: Robot, req: Mapping[str, Any], start: object) -> planning.Trajectory:
+    def _plan(self, arm: Robot, req: Mapping[str, Any], start: object, deadline: Deadline) -> planning.Trajectory:
         if "goal" not in req:
             raise BadRequest("a goal is needed: a joint vector, or {\"target\": [x, y, z], \"approach\": ...}",
                              field="goal")
@@ -133,7 +141,8 @@ class Handlers:
             start = self.book.current(arm).state
         path = req.get("path", "joint")
         speed = req.get("speed", 1.0)
-        return planning.plan(arm, start, req["goal"], path=path, speed=speed, rate_hz=req.get("rate_hz"), via=via)
+        return planning.plan(arm, start, req["goal"], path=path, speed=speed, rate_hz=req.get("rate_hz"), via=via,
+                             max_samples=self.limits.max_samples, check=deadline.check)
 
     @staticmethod
     def _message(arm: Robot, traj: planning.Trajectory, kind: str) -> dict[str, Any]:

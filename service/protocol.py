@@ -18,16 +18,39 @@ from robots import ArmdError, BadRequest
 
 PROTOCOL_VERSION = 1
 VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper")
+ENVELOPE = ("protocol", "deadline")  # fields any request may carry, whatever its verb
 
 
 @dataclass(frozen=True)
 class Limits:
-    """What the operator allows per request (defaults documented in docs/protocol.md)."""
+    """What the operator allows per request (``armd serve --max-...``, ``--deadline``;
+    defaults documented in docs/protocol.md and docs/reliability.md)."""
 
     max_payload_bytes: int = 1_000_000
-    max_batch: int = 10_000
+    max_batch: int = 10_000  # targets in one IK batch
     max_depth: int = 8  # nesting depth of a request's JSON
-    max_waypoints: int = 100
+    max_waypoints: int = 100  # via points of one plan or move
+    max_samples: int = 20_000  # samples of one trajectory (400 s at 50 Hz, 20 s at 1 kHz)
+    deadline: float = 4.0  # [s] from a request's arrival to its reply (below ArmClient's 5 s timeout)
+
+    def __post_init__(self) -> None:
+        for name in ("max_payload_bytes", "max_batch", "max_depth", "max_waypoints", "max_samples"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise BadRequest(f"{name} must be a whole number >= 1, got {value!r}", field=name)
+        d = self.deadline
+        if isinstance(d, bool) or not isinstance(d, (int, float)) or not math.isfinite(d) or d <= 0:
+            raise BadRequest(f"deadline must be a number of seconds > 0, got {d!r}", field="deadline")
+
+
+def request_deadline(req: Mapping[str, Any]) -> float | None:
+    """The request's own ``deadline`` [s] (optional; null is absent), or :class:`BadRequest`."""
+    v = req.get("deadline")
+    if v is None:
+        return None
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+        raise BadRequest(f"deadline must be a number of seconds > 0, got {v!r}", field="deadline")
+    return float(v)
 
 
 def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
@@ -119,7 +142,7 @@ def _finite(obj: Any) -> Any:
 
 def allowed(req: Mapping[str, Any], *names: str) -> None:
     """Refuse keys a verb does not know (a misspelt option must not be silently ignored)."""
-    extra = sorted(set(req) - set(names) - {"protocol"})
+    extra = sorted(set(req) - set(names) - set(ENVELOPE))
     if extra:
         raise BadRequest(f"unknown field {extra[0]!r}; this verb takes: {', '.join(names)}", field=extra[0])
 

@@ -14,9 +14,14 @@ One queryable on ``<prefix>/**`` takes every request, so a request for an unknow
 verb gets an error reply too. It is declared ``complete``: with several replicas on one
 network, a query (target ``BEST_MATCHING``, the default) reaches exactly one of them.
 Requests are served on a thread pool (Zenoh's own threads
-only hand them over); every request gets exactly one reply, an error reply for anything
+only hand them over), ``stop`` on a pool of its own, so that a queue of IK batches and plans
+cannot delay it (measured by bench/load.py); every request gets exactly one reply, an error reply for anything
 that goes wrong, and an unexpected exception is logged with its traceback and answered
 ``internal``: the service keeps serving.
+
+Every request has a deadline (:mod:`service.deadline`), counted from when Zenoh handed it
+over: one that waited in the queue past it is answered ``deadline`` without being worked
+on, and work that overruns it is abandoned and answered ``deadline`` with nothing published.
 """
 
 from __future__ import annotations
@@ -36,8 +41,9 @@ import zenoh
 from planning import JointState
 from robots import ArmdError, Robot, UnknownRobot
 
+from .deadline import Deadline, DeadlineExceeded
 from .handlers import Handlers
-from .protocol import VERBS, Internal, Limits, UnknownVerb, decode, encode, error_reply
+from .protocol import VERBS, Internal, Limits, UnknownVerb, decode, encode, error_reply, request_deadline
 from .state import StateBook
 
 log = logging.getLogger("armd.service")
@@ -59,12 +65,15 @@ class Service:
         self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
                                  self._publish_gripper)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
+        self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
                                                             congestion_control=zenoh.CongestionControl.BLOCK)
                             for name in self.arms}
         self._served = 0
         self._errors = 0
+        self._late = 0  # answered ``deadline``
+        self._in_flight = 0  # handed to a pool, not yet answered
         self._entities: list[Any] = [
             session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
@@ -86,42 +95,60 @@ class Service:
     # -- queries ------------------------------------------------------------------------
 
     def _on_query(self, query: zenoh.Query) -> None:
+        arrived = time.monotonic()  # the deadline counts from here, queue included
+        with self._lock:
+            self._in_flight += 1
+        key = str(query.key_expr)
+        pool = self._stops if key.endswith("/stop") and key.count("/") == self.prefix.count("/") + 2 else self._pool
         try:
-            self._pool.submit(self._serve, query)
+            pool.submit(self._serve, query, arrived)
         except RuntimeError:  # the pool is shut down: the service is closing
+            with self._lock:
+                self._in_flight -= 1
             query.drop()
 
-    def _serve(self, query: zenoh.Query) -> None:
-        started = time.perf_counter()
+    def _serve(self, query: zenoh.Query, arrived: float) -> None:
         key = str(query.key_expr)
+        outcome = "error"
         try:
             with query:  # finalises the query when done: one reply, then the end
                 try:
                     payload = query.payload.to_bytes() if query.payload is not None else b""
-                    reply = self._dispatch(key, payload)
+                    reply = self._dispatch(key, payload, Deadline(arrived, self.handlers.limits.deadline))
                     query.reply(query.key_expr, encode(reply), encoding=JSON)
-                    ok = True
+                    outcome = "ok"
                 except ArmdError as e:
                     query.reply_err(error_reply(e), encoding=JSON)
-                    ok = False
+                    outcome = "late" if isinstance(e, DeadlineExceeded) else "error"
                 except Exception as e:  # a bug: logged with its traceback, answered, never fatal
                     log.exception("internal error serving %s", key)
                     query.reply_err(error_reply(Internal(f"internal error: {type(e).__name__}: {e}")), encoding=JSON)
-                    ok = False
         except Exception:  # the query went away (client gone, session closing)
             log.debug("could not reply to %s", key, exc_info=True)
-            return
-        with self._lock:
-            self._served += 1
-            self._errors += not ok
-        log.debug("%s %s in %.2f ms", key, "ok" if ok else "error", (time.perf_counter() - started) * 1e3)
+            outcome = "lost"
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+                if outcome != "lost":
+                    self._served += 1
+                    self._errors += outcome != "ok"
+                    self._late += outcome == "late"
+        log.debug("%s %s in %.2f ms", key, outcome, (time.monotonic() - arrived) * 1e3)
 
-    def _dispatch(self, key: str, payload: bytes) -> dict[str, Any]:
+    def _dispatch(self, key: str, payload: bytes, deadline: Deadline) -> dict[str, Any]:
         rest = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
         parts = rest.split("/")
+        urgent = len(parts) == 2 and parts[1] == "stop"  # a stop is never refused for lateness
+        if not urgent:
+            deadline.check("queued")
         req = decode(payload, self.handlers.limits)
+        asked = request_deadline(req)
+        if asked is not None:
+            deadline.shorten(asked)
+            if not urgent:
+                deadline.check("queued")
         if parts == ["robots"]:
-            return self.handlers.robots(req)
+            return self._finish(self.handlers.robots(req, deadline), deadline)
         if len(parts) != 2:
             raise UnknownVerb(rest)
         name, verb = parts
@@ -131,7 +158,16 @@ class Service:
         if verb not in VERBS:
             raise UnknownVerb(verb)
         handler = getattr(self.handlers, verb)
-        result: dict[str, Any] = handler(arm, req)
+        result: dict[str, Any] = handler(arm, req, deadline)
+        if verb in ("move", "stop", "gripper"):  # published: the reply says so, however late
+            return result
+        return self._finish(result, deadline)
+
+    @staticmethod
+    def _finish(result: dict[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """A result that is ready after the deadline is not given: the client was told when to
+        stop waiting."""
+        deadline.check()
         return result
 
     # -- adapters ----------------------------------------------------------------------------
@@ -181,8 +217,11 @@ class Service:
     # -- life ------------------------------------------------------------------------------
 
     def stats(self) -> dict[str, int]:
+        """Requests ``served`` (answered), of them ``errors`` (error replies) and ``late``
+        (answered ``deadline``), and ``in_flight``: handed to a pool and not answered yet."""
         with self._lock:
-            return {"served": self._served, "errors": self._errors}
+            return {"served": self._served, "errors": self._errors, "late": self._late,
+                    "in_flight": self._in_flight}
 
     def close(self) -> None:
         for entity in self._entities:
@@ -196,4 +235,5 @@ class Service:
             except Exception:
                 log.debug("undeclare failed", exc_info=True)
         self._pool.shutdown(wait=True, cancel_futures=True)
+        self._stops.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())

@@ -1,7 +1,7 @@
 """Zenoh configurations: the embedded router, a member of an existing network, a client.
 
 Multicast scouting is always off (armd never announces itself on a LAN by surprise;
-endpoints are explicit), and so is gossip.
+endpoints are explicit), and so is gossip. So is shared memory (see :func:`_quiet`).
 """
 
 from __future__ import annotations
@@ -19,6 +19,11 @@ DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 def _quiet(conf: zenoh.Config) -> zenoh.Config:
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
+    # Shared memory off: with it, every client session on this host that sends a payload over
+    # 3 KB (an IK batch) makes a 16 MB segment that a router maps and keeps until it exits
+    # (measured: ~20 MB of the router's memory per such session, for ever). armd's payloads
+    # are small JSON; TCP on loopback carries them.
+    conf.insert_json5("transport/shared_memory/enabled", "false")
     return conf
 
 

@@ -11,7 +11,7 @@ the single-target path: the closest configuration within limits, by the QP.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -84,9 +84,14 @@ def solve_ik_batch(
     approach: object = None,
     seeds: Sequence[float] | FloatArray | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
+    check: Callable[[], None] | None = None,
 ) -> BatchIKResult:
     """IK for every row of ``targets`` (m, 3) [m]; ``seeds`` one joint vector for all, or (m, n);
     ``approach`` one approach for all, or one pitch [rad] per target (a sequence of m numbers).
+
+    ``check`` is called before each target that takes the slow path (about 0.5 ms each for an
+    unreachable target, against about 3 us in the compiled loop); whatever it raises abandons
+    the batch. The service's per-request deadline uses it.
 
     Raises :class:`BadRequest` (and solves nothing) when any input is malformed.
     """
@@ -129,6 +134,8 @@ def solve_ik_batch(
     pitch_out = np.empty(m)
     if arm.fp is None:
         for i in range(m):
+            if check is not None:
+                check()
             _store(i, _solve_numerical(arm, pts[i], refs[i], tolerance), status, branch, q, err, reached, pitch_out)
         return BatchIKResult(status, q, err, reached, pitch_out, branch)
 
@@ -152,6 +159,8 @@ def solve_ik_batch(
         pitch_sum = q[good][:, [int(j) for j in fp.J[1:] if j >= 0]].sum(axis=1)
         pitch_out[good] = np.remainder(pitch_sum + math.pi, 2 * math.pi) - math.pi
     for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
+        if check is not None:
+            check()
         a_i = float(pitches[i]) if per_target else approach
         p_i = float(pitches[i]) if per_target else pitch
         r = solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance) if solved[i] \

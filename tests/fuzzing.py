@@ -2,7 +2,8 @@
 
 Every request produced is invalid in some way: not JSON, not an object, a wrong type or
 length, NaN or infinities, unknown fields, robots or verbs, deep nesting, huge numbers, an
-oversized payload or batch. Each must get exactly one structured error reply.
+oversized payload, batch or trajectory, a speed too low to time, a bad deadline. Each must
+get exactly one structured error reply.
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ def _verb_bad(rng: random.Random, verb: str) -> bytes:
                           {"target": [0.2, 0.0, 0.1], "seed": opt}, {"target": [0.2, 0.0, 0.1], "tolerance": opt},
                           {"targets": rng.choice(_NOT_POINTS)}, {"targets": [[0.2, 0.0, 0.1], wrong]}, {}])
     elif verb in ("plan", "move"):
-        req = rng.choice([{"goal": wrong}, {"goal": [0.0] * NQ, "speed": rng.choice([0, -1, 2, opt])},
+        req = rng.choice([{"goal": wrong}, {"goal": [0.0] * NQ, "speed": rng.choice([0, -1, 2, 1e-7, opt])},
+                          {"goal": [0.0, 1.0, -1.0, 0.0, 0.0], "speed": 0.001, "rate_hz": 1000},  # 10^6 samples
                           {"goal": [0.0] * NQ, "path": rng.choice(["curve", opt])},
                           {"goal": [0.0] * NQ, "rate_hz": rng.choice([0, 1e6, opt])},
                           {"goal": [9.0] * NQ}, {"goal": {"target": wrong}}, {"goal": [0.0] * NQ, "via": opt},
@@ -67,6 +69,8 @@ def _verb_bad(rng: random.Random, verb: str) -> bytes:
         req = {rng.choice(["q", "x", "target"]): wrong}
     if req == {} and verb in ("info", "stop"):
         req = {"x": 1}
+    if rng.random() < 0.1:  # the envelope: a deadline that is not a number of seconds > 0 (null: absent)
+        req["deadline"] = rng.choice([0, -1, "soon", True, [], {}, None])
     return json.dumps(req).encode()
 
 

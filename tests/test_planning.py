@@ -93,6 +93,20 @@ def test_plans_from_a_moving_state_and_stops(name: str, a: st.DataObject) -> Non
     assert stop.duration <= first.duration
 
 
+@pytest.mark.parametrize("speed", [0.01, 0.001])
+def test_a_slow_plan_from_a_fast_moving_state_brakes_first(speed: float) -> None:
+    """Found by bench/load.py: a plan at a low speed from a moving arm made Ruckig brake within
+    the slowed limits, which it cannot time (RuckigError: answered internal)."""
+    arm = robots.load("insomniac")
+    first = plan(arm, arm.neutral, [1.2, 1.0, -1.2, 0.5, 1.0])
+    k = len(first.times) // 2
+    moving = JointState(first.position[k], first.velocity[k], first.acceleration[k])
+    tr = plan(arm, moving, [0.0, 1.0, -1.0, 0.0, 0.0], speed=speed)
+    assert_safe(arm, tr)
+    assert np.allclose(tr.velocity[0], moving.velocity, atol=1e-9)
+    assert np.allclose(tr.position[-1], [0.0, 1.0, -1.0, 0.0, 0.0], atol=1e-9)
+
+
 @pytest.mark.parametrize("name", ARMS)
 @SETTINGS
 @given(a=st.data())

@@ -1,8 +1,11 @@
 """docs/security: a router that authenticates every session and lets only trusted users move
-arms. A guest's move is refused and nothing moves; an operator's works."""
+arms. A guest's move is refused and nothing moves; an operator's works. And TLS, alone and
+with the login and the ACL, with a throwaway CA made at test time."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,6 +15,7 @@ import pytest
 import zenoh
 
 import robots
+import solvers
 from clients import ArmClient, NoReply
 from clients.sim import SimAdapter
 from service.server import Service
@@ -83,3 +87,103 @@ def test_a_wrong_password_cannot_connect(secured: dict[str, Path]) -> None:
     with pytest.raises(NoReply) as e:
         ArmClient(config=str(secured["intruder"]), timeout=1.0)
     assert "cannot reach" in e.value.message
+
+
+# -- TLS -------------------------------------------------------------------------------------------
+
+@pytest.fixture
+def certs(tmp_path: Path) -> Path:
+    """A throwaway CA and router certificate, made by docs/security/make-certs.sh."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed: the TLS tests make a throwaway certificate authority with it")
+    out = tmp_path / "certs"
+    subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
+    return out
+
+
+def _tls(name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int, as_name: str | None = None,
+         **replace: str) -> Path:
+    """A copy of a docs/security file on free ports, its certificate paths pointing at ``certs``."""
+    return _copy(name, tmp, tcp_port, as_name, **{"tls/127.0.0.1:7448": f"tls/127.0.0.1:{tls_port}",
+                                                  '"certs/': f'"{certs}/', **replace})
+
+
+def test_tls(tmp_path: Path, certs: Path) -> None:
+    """docs/security/tls-*.json5: the service and a client over TLS, an adapter on loopback TCP;
+    a client that does not trust the CA, or that speaks plain TCP to the TLS port, gets nowhere."""
+    tls_port, tcp_port = free_port(), free_port()
+    router = zenoh.open(zenoh.Config.from_file(str(_tls("tls-router.json5", tmp_path, certs, tls_port, tcp_port))))
+    conf = _tls("tls-client.json5", tmp_path, certs, tls_port, tcp_port)
+    arm = robots.load("gupta3")
+    svc_session = zenoh.open(network_config(config_file=str(conf)))
+    service = Service(svc_session, {"gupta3": arm})
+    adapter_session = zenoh.open(network_config(connect=[f"tcp/127.0.0.1:{tcp_port}"]))
+    sim = SimAdapter(adapter_session, arm, time_scale=5.0)
+    client = ArmClient(config=str(conf), timeout=5.0)
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter")  # type: ignore[attr-defined]
+        target = arm.fk(np.array([0.2, 1.0, -1.1]))
+        r = client.ik("gupta3", target.tolist())
+        assert r.status == "ok" and np.allclose(r.q, solvers.solve_ik(arm, target).q, atol=1e-12)
+        client.move("gupta3", [0.4, 1.1, -1.2], wait=True, wait_timeout=10)
+        assert np.allclose(sim.position, [0.4, 1.1, -1.2], atol=1e-9)
+        untrusting = _tls("tls-client.json5", tmp_path, certs, tls_port, tcp_port, "untrusting.json5",
+                          **{f'root_ca_certificate: "{certs}/ca.pem"': "verify_name_on_connect: true"})
+        with pytest.raises(NoReply):  # the system's CAs do not know this router
+            ArmClient(config=str(untrusting), timeout=1.0)
+        with pytest.raises(NoReply):  # TCP to the TLS port: no Zenoh session opens
+            ArmClient(f"tcp/127.0.0.1:{tls_port}", timeout=1.0).robots()
+    finally:
+        client.close()
+        sim.close()
+        adapter_session.close()
+        service.close()
+        svc_session.close()
+        router.close()
+
+
+def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
+    """docs/security/router.json5 and its clients with their TLS lines uncommented: a guest over
+    TLS asks but cannot move; the operator moves."""
+    tls_port, tcp_port = free_port(), free_port()
+    users = str(DOCS / "users.txt")
+    uncomment = {"// link: { tls: { root_ca_certificate: \"ca.pem\" } },":
+                 f'link: {{ tls: {{ root_ca_certificate: "{certs}/ca.pem" }} }},',
+                 f'"tcp/127.0.0.1:{tcp_port}"': f'"tls/127.0.0.1:{tls_port}"'}
+    router_conf = _copy("router.json5", tmp_path, tcp_port, **{
+        "docs/security/users.txt": users,
+        '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },':
+        f'link: {{ tls: {{ listen_certificate: "{certs}/router.pem", listen_private_key: "{certs}/router.key" }} }},',
+        f'endpoints: ["tcp/127.0.0.1:{tcp_port}"]': f'endpoints: ["tls/127.0.0.1:{tls_port}"]'})
+    router = zenoh.open(zenoh.Config.from_file(str(router_conf)))
+    confs = {}
+    for who in ("service", "adapter", "operator", "guest"):
+        path = _copy(f"{who}.json5", tmp_path, tcp_port)
+        text = path.read_text()
+        for old, new in uncomment.items():
+            assert old in text, (who, old)
+            text = text.replace(old, new)
+        path.write_text(text)
+        confs[who] = path
+    arm = robots.load("gupta3")
+    svc_session = zenoh.open(network_config(config_file=str(confs["service"])))
+    service = Service(svc_session, {"gupta3": arm})
+    adapter_session = zenoh.open(network_config(config_file=str(confs["adapter"])))
+    sim = SimAdapter(adapter_session, arm, time_scale=5.0)
+    guest = ArmClient(config=str(confs["guest"]), timeout=2.0)
+    operator = ArmClient(config=str(confs["operator"]), timeout=5.0)
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter")  # type: ignore[attr-defined]
+        assert guest.fk("gupta3", [0.0, 1.0, -1.0]).within_limits
+        with pytest.raises(NoReply):
+            guest.move("gupta3", [0.5, 1.2, -1.0])
+        operator.move("gupta3", [0.5, 1.2, -1.0], wait=True, wait_timeout=10)
+        assert np.allclose(sim.position, [0.5, 1.2, -1.0], atol=1e-9)
+    finally:
+        guest.close()
+        operator.close()
+        sim.close()
+        adapter_session.close()
+        service.close()
+        svc_session.close()
+        router.close()

@@ -17,13 +17,16 @@ from clients import ArmClient, ServiceError
 from tests.conftest import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
+LIMITS = ["--max-batch", "50", "--max-payload", "200000", "--max-samples", "5000", "--max-waypoints", "10",
+          "--deadline", "3", "--workers", "2"]  # the operator's flags, other than the defaults
 
 
 @pytest.fixture(scope="module")
 def served() -> Iterator[str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint, "--sim",
-                             "--time-scale", "5"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "--time-scale", "5", *LIMITS], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
     assert proc.stdout is not None
     deadline = time.monotonic() + 120
     line = ""
@@ -78,3 +81,30 @@ def test_cli_without_a_service() -> None:
                         f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_operator_limits_from_the_command_line(served: str) -> None:
+    arm = robots.load("gupta3")
+    points = [arm.fk([0.01 * k, 1.0, -1.0]).tolist() for k in range(51)]
+    with ArmClient(served) as c:
+        assert len(c.ik_batch("gupta3", points[:50])["status"]) == 50
+        with pytest.raises(ServiceError) as e:
+            c.ik_batch("gupta3", points)
+        assert e.value.code == "too_large" and e.value.fields["limit"] == 50
+        with pytest.raises(ServiceError) as e:
+            c.call("gupta3/fk", {"q": [0, 1, -1], "pad": "x" * 200_000})
+        assert e.value.code == "too_large" and e.value.fields["limit"] == 200_000
+        with pytest.raises(ServiceError) as e:
+            c.plan("gupta3", [0.5, 1.2, -1.2], start=[0.0, 1.0, -1.0], rate_hz=1000, speed=0.1)
+        assert e.value.code == "too_large" and e.value.fields["limit"] == 5000
+        with pytest.raises(ServiceError) as e:
+            c.plan("gupta3", [0.5, 1.2, -1.2], via=[[0.0, 1.0, -1.0]] * 11)
+        assert e.value.code == "bad_request" and e.value.field == "via"
+        assert c.call("robots")["limits"] == {"max_payload_bytes": 200_000, "max_batch": 50, "max_depth": 8,
+                                              "max_waypoints": 10, "max_samples": 5000, "deadline": 3.0}
+
+
+def test_serve_refuses_a_nonsense_limit() -> None:
+    r = subprocess.run([sys.executable, "-m", "clients.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
+                        "--deadline", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "deadline must be" in r.stderr and "Traceback" not in r.stderr

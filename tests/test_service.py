@@ -129,7 +129,7 @@ def test_no_trajectory_published_for_refused_requests(client: ArmClient, router:
 
 def test_internal_errors_are_answered_and_the_service_lives_on(client: ArmClient, service: object,
                                                                monkeypatch: pytest.MonkeyPatch) -> None:
-    def broken(arm: object, req: object) -> dict[str, object]:
+    def broken(arm: object, req: object, deadline: object) -> dict[str, object]:
         raise ZeroDivisionError("a bug")
 
     monkeypatch.setattr(service.handlers, "fk", broken)  # type: ignore[attr-defined]

@@ -1,0 +1,29 @@
+"""A short run of bench/load.py against a real service: every request answered exactly once
+(none lost), no bad request answered ok and nothing answered ``internal``, and stops sent
+during the load answered and honoured (the arm comes to rest short of its goal). Speed is
+measured by the benchmark itself (docs/benchmarks.md), never asserted here."""
+
+from __future__ import annotations
+
+import robots
+from bench.load import STOP_ARM, run
+from clients.sim import SimAdapter
+from service.server import Service
+from tests.conftest import wait_for
+
+
+def test_load_with_a_stop_in_it(router: str, service: Service, adapter_session: object) -> None:
+    arm = robots.load(STOP_ARM)
+    sim = SimAdapter(adapter_session, arm)  # type: ignore[arg-type]
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the simulated arm")
+        r = run(router, clients=2, threads=2, seconds=4.0, idle_stops=1)
+    finally:
+        sim.close()
+    assert r["lost"] == 0 and r["wrong"] == 0, r["verbs"]
+    verbs = r["verbs"]
+    assert {"ik", "fk", "plan", "batch", "bad"} <= set(verbs)
+    assert all(v["ok"] == 0 for k, v in verbs.items() if k == "bad")
+    assert not r["stop_failures"], r["stop_failures"]
+    assert len(r["stop_load_ms"]) >= 1 and r["stops_honoured"]["load"] == len(r["stop_load_ms"])
+    wait_for(lambda: service.stats()["in_flight"] == 0, what="an idle service")
