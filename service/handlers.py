@@ -96,6 +96,9 @@ class Handlers:
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
         msg = self._message(arm, traj, "move")
+        goal = req["goal"]
+        if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
+            msg["target"] = goal["target"]  # the Cartesian target asked for (viewers draw it)
         deadline.check()  # the last moment to give up: after this the arm moves
         self.publish(arm, msg)
         self.book.commanded(arm.name, traj)

@@ -15,6 +15,7 @@ import robots
 import solvers
 from clients import ArmClient, ServiceError
 from clients.sim import SimAdapter
+from tests.conftest import collect
 from tests.test_fk import random_in_limits
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -181,6 +182,7 @@ def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
     events: list[dict[str, object]] = []
     sub = client.session.declare_subscriber("armd/gupta3/events",
                                             lambda s: events.append(json.loads(s.payload.to_bytes())))
+    published, trajectories = collect(client, "armd/gupta3/trajectory")
     try:
         goal = np.array([0.6, 1.1, -1.3])
         r = client.move("gupta3", goal.tolist(), wait=True, wait_timeout=10)
@@ -194,6 +196,10 @@ def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
         time.sleep(0.2)
     finally:
         sub.undeclare()
+        trajectories.undeclare()  # type: ignore[attr-defined]
+    by_id = {m["id"]: m for m in published}
+    assert "target" not in by_id[r.id]  # a joint goal
+    assert by_id[r2.id]["target"] == [0.18, 0.05, 0.1]  # a Cartesian goal: its target travels with it
     kinds = [e["event"] for e in events if e.get("id") == r.id]
     assert kinds[:2] == ["accepted", "started"] and "done" in kinds
 
