@@ -5,10 +5,13 @@ Processes, all on 127.0.0.1: a Zenoh router (``armd router``), the service (``ar
 payload, the floor under any service), and the clients. Both servers are clients of the
 same router, so a request takes the same path to either.
 
-* latency: one client process alternates IK requests (targets from FK of random in-limit
-  configurations) and echo requests of the same size; p50 and p99 of each, and the ratio.
+* latency: one client process interleaves IK requests (targets from FK of random in-limit
+  configurations) through ``ArmClient.ik`` and as a bare Zenoh get whose reply is parsed
+  with ``json.loads`` (what a client in any language does), and echo requests of the same
+  payload; p50 and p99 of each, and the ratios to the echo.
 * throughput: 4 client processes send IK requests back to back for ``--seconds``; replies
-  per second, and requests that got no reply (lost).
+  per second, and requests that got no reply (lost); then the same against the echo (the
+  peer: what this machine's Zenoh and Python clients can carry at all).
 
 Run: ``.venv/bin/python bench/service.py [--n 2000] [--seconds 5]``.
 """
@@ -23,6 +26,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -63,20 +67,49 @@ def latency(endpoint: str, n: int, out: mp.Queue) -> None:  # type: ignore[type-
     from clients import ArmClient
 
     ts = targets(n)
-    ik_us, echo_us = [], []
+    ik_us, raw_us, echo_us = [], [], []
     with ArmClient(endpoint, timeout=10.0) as c:
         for t in ts[:20]:  # warm-up
             c.ik("insomniac", t)
-        for t in ts:
+        for t in ts:  # the three interleaved, so that the machine's noise falls on all of them alike
             payload = json.dumps({"target": t}).encode()
             t0 = time.perf_counter_ns()
             c.ik("insomniac", t)
             ik_us.append((time.perf_counter_ns() - t0) / 1e3)
             t0 = time.perf_counter_ns()
+            replies = list(c.session.get("armd/insomniac/ik", payload=payload, timeout=10.0))
+            reply = json.loads(replies[0].ok.payload.to_bytes())  # type: ignore[union-attr]
+            raw_us.append((time.perf_counter_ns() - t0) / 1e3)
+            assert len(replies) == 1 and reply["status"] == "ok"
+            t0 = time.perf_counter_ns()
             replies = list(c.session.get("bench/echo", payload=payload, timeout=10.0))
             echo_us.append((time.perf_counter_ns() - t0) / 1e3)
             assert len(replies) == 1 and replies[0].ok is not None
-    out.put((ik_us, echo_us))  # type: ignore[attr-defined]
+    out.put((ik_us, raw_us, echo_us))  # type: ignore[attr-defined]
+
+
+def hammer_raw(endpoint: str, seconds: float, seed: int, out: mp.Queue, key: str) -> None:  # type: ignore[type-arg]
+    """A Zenoh get and ``json.loads`` of the reply, back to back: against ``armd/insomniac/ik``,
+    or against the bare echo (the peer), the same client work either way."""
+    import zenoh
+
+    from service.zconfig import client_config
+
+    payloads = [json.dumps({"target": t}).encode() for t in targets(500, seed)]
+    done = lost = errors = 0
+    with zenoh.open(client_config([endpoint], None)) as session:
+        end = time.monotonic() + seconds
+        i = 0
+        while time.monotonic() < end:
+            replies = list(session.get(key, payload=payloads[i % len(payloads)], timeout=5.0))
+            if len(replies) == 1 and replies[0].ok is not None:
+                reply = json.loads(replies[0].ok.payload.to_bytes())
+                done += 1
+                errors += key.endswith("/ik") and reply["status"] != "ok"
+            else:
+                lost += 1
+            i += 1
+    out.put((done, lost, errors))  # type: ignore[attr-defined]
 
 
 def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
@@ -122,28 +155,36 @@ def main() -> None:
         q = ctx.Queue()
         p = ctx.Process(target=latency, args=(endpoint, args.n, q))
         p.start()
-        ik_us, echo_us = q.get(timeout=600)
+        ik_us, raw_us, echo_us = q.get(timeout=600)
         p.join()
-        ik, ec = np.array(ik_us), np.array(echo_us)
-        print("| round trip (client process -> router -> server process) | p50 us | p99 us |")
-        print("|---|---|---|")
-        print(f"| armd ik (insomniac) | {np.median(ik):.0f} | {np.percentile(ik, 99):.0f} |")
-        print(f"| bare Zenoh echo, same payload | {np.median(ec):.0f} | {np.percentile(ec, 99):.0f} |")
-        print(f"| ratio ik / echo | {np.median(ik) / np.median(ec):.2f}x | "
-              f"{np.percentile(ik, 99) / np.percentile(ec, 99):.2f}x |")
-        q = ctx.Queue()
-        procs = [ctx.Process(target=hammer, args=(endpoint, args.seconds, k, q)) for k in range(args.clients)]
-        for pr in procs:
-            pr.start()
-        results = [q.get(timeout=args.seconds + 300) for _ in procs]
-        for pr in procs:
-            pr.join()
-        done = sum(r[0] for r in results)
-        lost = sum(r[1] for r in results)
-        errors = sum(r[2] for r in results)
+        ik, raw, ec = np.array(ik_us), np.array(raw_us), np.array(echo_us)
+        print("| round trip (client process -> router -> server process) | p50 us | p99 us | p50 / echo | p99 / echo |")
+        print("|---|---:|---:|---:|---:|")
+        for label, a in (("armd ik, a Zenoh get + json.loads (any language's client)", raw),
+                         ("armd ik, ArmClient.ik (typed reply, NumPy arrays)", ik),
+                         ("bare Zenoh echo, same payload (the floor)", ec)):
+            print(f"| {label} | {np.median(a):.0f} | {np.percentile(a, 99):.0f} | "
+                  f"{np.median(a) / np.median(ec):.2f}x | {np.percentile(a, 99) / np.percentile(ec, 99):.2f}x |")
         print()
-        print(f"throughput, {args.clients} client processes, {args.seconds:g} s: "
-              f"{done / args.seconds:.0f} IK replies/s, {lost} lost, {errors} not ok")
+        print(f"| throughput, {args.clients} client processes, {args.seconds:g} s each | replies/s | lost | not ok |")
+        print("|---|---:|---:|---:|")
+        runs: list[tuple[str, Any, tuple[Any, ...]]] = [
+            ("armd ik, a Zenoh get + json.loads", hammer_raw, ("armd/insomniac/ik",)),
+            ("bare Zenoh echo, a Zenoh get + json.loads (the peer)", hammer_raw, ("bench/echo",)),
+            ("armd ik, ArmClient.ik", hammer, ()),
+        ]
+        for label, target, extra in runs:
+            q = ctx.Queue()
+            procs = [ctx.Process(target=target, args=(endpoint, args.seconds, k, q, *extra))
+                     for k in range(args.clients)]
+            for pr in procs:
+                pr.start()
+            results = [q.get(timeout=args.seconds + 300) for _ in procs]
+            for pr in procs:
+                pr.join()
+            done = sum(r[0] for r in results)
+            print(f"| {label} | {done / args.seconds:.0f} | {sum(r[1] for r in results)} | "
+                  f"{sum(r[2] for r in results)} |")
     finally:
         stop.set()
         echo.join(10)

@@ -7,13 +7,13 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import orjson
 import zenoh
 from numpy.typing import NDArray
 
@@ -145,13 +145,13 @@ class ArmClient:
         for _attempt in range(2):  # a replica that died with the query in flight: ask once more
             for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait):
                 if reply.ok is not None:
-                    out: dict[str, Any] = json.loads(reply.ok.payload.to_bytes())
+                    out: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
                     return out
                 err = reply.err
                 assert err is not None
                 body = err.payload.to_bytes()
                 try:
-                    obj = json.loads(body)
+                    obj = orjson.loads(body)
                 except ValueError:  # Zenoh's own error (a timeout): not a service reply
                     break
                 raise ServiceError(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})

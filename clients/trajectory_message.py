@@ -3,10 +3,10 @@ checking it again before anything reaches an actuator (defence in depth)."""
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 import numpy as np
+import orjson
 from numpy.typing import NDArray
 
 import planning
@@ -48,7 +48,7 @@ def parse(robot: Robot, payload: bytes) -> Command:
     """A :class:`Command` from a trajectory message, every sample re-checked against every
     limit and actuator range of ``robot``: one bad sample rejects the whole trajectory."""
     try:
-        msg = json.loads(payload)
+        msg = orjson.loads(payload)
         times = np.asarray(msg["times"], dtype=float)
         pos = np.asarray(msg["position"], dtype=float)
         vel = np.asarray(msg["velocity"], dtype=float)

@@ -14,6 +14,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import orjson
+
 from robots import ArmdError, BadRequest
 
 PROTOCOL_VERSION = 1
@@ -60,18 +62,16 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     if len(payload) > limits.max_payload_bytes:
         raise PayloadTooLarge(len(payload), limits.max_payload_bytes)
     try:
-        text = payload.decode("utf-8")
+        payload.decode("utf-8")
     except UnicodeDecodeError:
         raise BadRequest("the payload is not UTF-8 text (a JSON object is expected)", field="payload") from None
-    try:
-        obj = json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
-    except RecursionError:
-        raise BadRequest("the JSON is nested too deeply", field="payload") from None
-    except ValueError as e:
+    try:  # strict JSON: NaN, Infinity and numbers beyond a double (1e999) are refused
+        obj = orjson.loads(payload)
+    except orjson.JSONDecodeError as e:
         raise BadRequest(f"the payload is not valid JSON: {e}", field="payload") from None
     if not isinstance(obj, dict):
         raise BadRequest(f"the request must be a JSON object, got {type(obj).__name__}", field="payload")
-    if _depth(obj) > limits.max_depth:
+    if _depth(obj, 1) > limits.max_depth:
         raise BadRequest(f"the request is nested deeper than {limits.max_depth} levels", field="payload")
     version = obj.get("protocol", PROTOCOL_VERSION)
     if version != PROTOCOL_VERSION or isinstance(version, bool):
@@ -80,23 +80,18 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     return obj
 
 
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a number JSON allows")
-
-
-def _finite_float(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):  # 1e999 parses to infinity
-        raise ValueError(f"{text[:20]} is too large for a number")
-    return value
-
-
-def _depth(obj: object, level: int = 1) -> int:
-    if isinstance(obj, dict):
-        return max([level, *(_depth(v, level + 1) for v in obj.values())])
-    if isinstance(obj, list):
-        return max([level, *(_depth(v, level + 1) for v in obj)])
-    return level
+def _depth(obj: object, level: int) -> int:
+    """Nesting depth of parsed JSON (a scalar inside a container is one level deeper)."""
+    values = obj.values() if isinstance(obj, dict) else obj
+    deepest = level
+    for v in values:  # type: ignore[attr-defined]
+        if isinstance(v, (dict, list)):
+            d = _depth(v, level + 1)
+            if d > deepest:
+                deepest = d
+        elif deepest == level:
+            deepest = level + 1
+    return deepest
 
 
 class PayloadTooLarge(ArmdError):
@@ -122,8 +117,18 @@ class Internal(ArmdError):
 
 
 def encode(obj: Mapping[str, Any]) -> bytes:
-    """A reply as JSON bytes (NaN and infinities, which JSON lacks, become null)."""
-    return json.dumps(_finite(obj), separators=(",", ":")).encode()
+    """A reply as JSON bytes (NaN and infinities, which JSON lacks, become null; NumPy arrays
+    become lists)."""
+    try:
+        return orjson.dumps(obj, option=orjson.OPT_SERIALIZE_NUMPY)
+    except TypeError:  # what orjson cannot write (an integer beyond 64 bits echoed back): the json module
+        return json.dumps(_finite(obj), separators=(",", ":"), default=_plain).encode()
+
+
+def _plain(obj: Any) -> Any:
+    if hasattr(obj, "tolist"):  # NumPy arrays and scalars
+        return obj.tolist()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
 def error_reply(err: ArmdError) -> bytes:

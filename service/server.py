@@ -13,9 +13,11 @@ Key expressions (``prefix`` = ``armd`` by default):
 One queryable on ``<prefix>/**`` takes every request, so a request for an unknown robot or
 verb gets an error reply too. It is declared ``complete``: with several replicas on one
 network, a query (target ``BEST_MATCHING``, the default) reaches exactly one of them.
-Requests are served on a thread pool (Zenoh's own threads
-only hand them over), ``stop`` on a pool of its own, so that a queue of IK batches and plans
-cannot delay it (measured by bench/load.py); every request gets exactly one reply, an error reply for anything
+Quick requests (``fk``, ``info``, ``robots``, IK of one target: microseconds to a couple of
+milliseconds) are answered on the Zenoh thread that received them, where a hand-over to a
+worker would cost more than the work (bench/service.py). The rest are served on a thread
+pool, ``stop`` on a pool of its own, so that a queue of IK batches and plans cannot delay it
+(measured by bench/load.py); every request gets exactly one reply, an error reply for anything
 that goes wrong, and an unexpected exception is logged with its traceback and answered
 ``internal``: the service keeps serving.
 
@@ -26,7 +28,6 @@ on, and work that overruns it is abandoned and answered ``deadline`` with nothin
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
@@ -36,6 +37,7 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
+import orjson
 import zenoh
 
 from planning import JointState
@@ -47,6 +49,7 @@ from .protocol import VERBS, Internal, Limits, UnknownVerb, decode, encode, erro
 from .state import StateBook
 
 log = logging.getLogger("armd.service")
+QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
 JSON = zenoh.Encoding.APPLICATION_JSON
 
 
@@ -96,25 +99,38 @@ class Service:
 
     def _on_query(self, query: zenoh.Query) -> None:
         arrived = time.monotonic()  # the deadline counts from here, queue included
+        key = str(query.key_expr)
+        payload = query.payload
+        body = payload.to_bytes() if payload is not None else b""
         with self._lock:
             self._in_flight += 1
-        key = str(query.key_expr)
+        if self._quick(key, body):  # answered here, on Zenoh's thread: no hand-over to a worker
+            self._serve(query, arrived, key, body)
+            return
         pool = self._stops if key.endswith("/stop") and key.count("/") == self.prefix.count("/") + 2 else self._pool
         try:
-            pool.submit(self._serve, query, arrived)
+            pool.submit(self._serve, query, arrived, key, body)
         except RuntimeError:  # the pool is shut down: the service is closing
             with self._lock:
                 self._in_flight -= 1
             query.drop()
 
-    def _serve(self, query: zenoh.Query, arrived: float) -> None:
-        key = str(query.key_expr)
+    @staticmethod
+    def _quick(key: str, body: bytes) -> bool:
+        """A request short enough to answer on the thread that received it (microseconds to
+        a couple of milliseconds): fk, info, robots, and IK of one target. Handing it to a
+        worker would cost more than the work; everything else queues for the workers."""
+        verb = key[key.rfind("/") + 1:]
+        if verb in ("fk", "info", "robots"):
+            return True
+        return verb == "ik" and len(body) <= QUICK_BYTES and b'"targets"' not in body
+
+    def _serve(self, query: zenoh.Query, arrived: float, key: str, body: bytes) -> None:
         outcome = "error"
         try:
             with query:  # finalises the query when done: one reply, then the end
                 try:
-                    payload = query.payload.to_bytes() if query.payload is not None else b""
-                    reply = self._dispatch(key, payload, Deadline(arrived, self.handlers.limits.deadline))
+                    reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline))
                     query.reply(query.key_expr, encode(reply), encoding=JSON)
                     outcome = "ok"
                 except ArmdError as e:
@@ -202,7 +218,7 @@ class Service:
         if arm is None:
             return
         try:
-            msg = json.loads(sample.payload.to_bytes())
+            msg = orjson.loads(sample.payload.to_bytes())
             q = np.asarray(msg["position"], dtype=float)
             v = np.asarray(msg.get("velocity", np.zeros(arm.nq)), dtype=float)
             a = np.asarray(msg.get("acceleration", np.zeros(arm.nq)), dtype=float)

@@ -183,6 +183,7 @@ def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
     sub = client.session.declare_subscriber("armd/gupta3/events",
                                             lambda s: events.append(json.loads(s.payload.to_bytes())))
     published, trajectories = collect(client, "armd/gupta3/trajectory")
+    time.sleep(0.5)  # subscriptions reach the publishers through the router a moment later (no ack to wait for)
     try:
         goal = np.array([0.6, 1.1, -1.3])
         r = client.move("gupta3", goal.tolist(), wait=True, wait_timeout=10)
