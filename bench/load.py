@@ -51,14 +51,18 @@ VERB_ORDER = ["ik", "fk", "plan", "line", "batch", "info", "robots", "bad", "mov
 
 # -- one request ----------------------------------------------------------------------------
 
+LOST: list[str] = []  # what each lost request saw (printed by the load processes)
+
 def ask(session: Any, key: str, payload: bytes) -> tuple[str, dict[str, Any] | None, float]:
     """('ok' | 'err' | 'lost', reply object, seconds)."""
     import zenoh
 
     t0 = time.perf_counter()
-    replies = list(session.get(key, payload=payload, encoding=zenoh.Encoding.APPLICATION_JSON, timeout=TIMEOUT))
+    replies = list(session.get(key, payload=payload, encoding=zenoh.Encoding.APPLICATION_JSON, timeout=TIMEOUT,
+                               congestion_control=zenoh.CongestionControl.BLOCK))
     dt = time.perf_counter() - t0
     if len(replies) != 1:
+        LOST.append(f"{key}: {len(replies)} replies after {dt:.2f} s")
         return "lost", None, dt
     r = replies[0]
     if r.ok is not None:
@@ -66,6 +70,7 @@ def ask(session: Any, key: str, payload: bytes) -> tuple[str, dict[str, Any] | N
     try:
         body = json.loads(r.err.payload.to_bytes())
     except ValueError:  # Zenoh's own error (a timeout): not the service's reply
+        LOST.append(f"{key}: Zenoh error {r.err.payload.to_bytes()[:200]!r} after {dt:.2f} s")
         return "lost", None, dt
     return ("err", body, dt) if isinstance(body, dict) and "code" in body else ("lost", None, dt)
 
@@ -175,7 +180,7 @@ def worker_load(endpoint: str, threads: int, seed: int) -> None:
             t.start()
         for t in ts:
             t.join()
-    print(json.dumps({"verbs": tally.verbs}), flush=True)
+    print(json.dumps({"verbs": tally.verbs, "lost_detail": LOST[:20]}), flush=True)
 
 
 # -- the stopper ----------------------------------------------------------------------------
@@ -299,7 +304,8 @@ def run(endpoint: str, *, clients: int = 4, threads: int = 4, seconds: float = 2
             "lost": sum(v["lost"] for v in verbs.values()), "wrong": sum(v["wrong"] for v in verbs.values()),
             "stop_idle_ms": idle["stops_ms"], "stop_load_ms": under["stops_ms"],
             "stops_honoured": {"idle": idle["honoured"], "load": under["honoured"]},
-            "stop_failures": idle["failures"] + under["failures"]}
+            "stop_failures": idle["failures"] + under["failures"],
+            "lost_detail": [d for r in load for d in r.get("lost_detail", [])]}
 
 
 # -- report ---------------------------------------------------------------------------------

@@ -149,11 +149,12 @@ class Adapter(ABC):
         with self._lock:
             if self._cmd is not None and not self._finished:
                 self.event("aborted", id=self._cmd.id, reason=f"replaced by {cmd.id}")
+            # said before the loop can see it (under the lock): "accepted" always precedes "started"
+            self.event("accepted", id=cmd.id, trajectory=cmd.kind, duration=cmd.duration)
             self._cmd = cmd
             self._t0 = time.monotonic()
             self._new = True
             self._finished = False
-        self.event("accepted", id=cmd.id, trajectory=cmd.kind, duration=cmd.duration)
 
     def _loop(self) -> None:
         next_state = next_check = time.monotonic()

@@ -143,7 +143,8 @@ class ArmClient:
         payload = encode(request)
         wait = self.timeout if timeout is None else timeout
         for _attempt in range(2):  # a replica that died with the query in flight: ask once more
-            for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait):
+            for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait,
+                                          congestion_control=zenoh.CongestionControl.BLOCK):  # (DROP loses big ones)
                 if reply.ok is not None:
                     out: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
                     return out

@@ -131,6 +131,7 @@ class Service:
             with query:  # finalises the query when done: one reply, then the end
                 try:
                     reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline))
+                    # (a reply travels with its query's congestion control: clients ask with BLOCK)
                     query.reply(query.key_expr, encode(reply), encoding=JSON)
                     outcome = "ok"
                 except ArmdError as e:

@@ -17,6 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .activeset import solve_qp
+from .analytic import NONE, solve_one
 from .geometric import family_fk, wrap_angle, wrap_into
 from .jit import jit
 from .limits import limits_ok
@@ -25,6 +26,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
+FREE_PREFS = np.array([0.0, -math.pi / 2])  # the free-pitch preference (solvers.ik.FREE_PITCHES)
 
 
 @jit
@@ -159,7 +161,8 @@ def refine_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 
 @jit
 def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                clo: FloatArray, chi: FloatArray, target: FloatArray, ref: FloatArray, q_out: FloatArray) -> float:
+                clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool, target: FloatArray,
+                ref: FloatArray, q_out: FloatArray) -> float:
     """The closest configuration within the box limits, any tool pitch, by enumerating every
     stationary point: (error [m]), or -1 where this does not apply.
 
@@ -172,10 +175,12 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     lie on the line from the first free joint's origin to the target, each free joint turning
     the rigid chain after it onto that line, pointing along it or back. Every face and both
     directions per free joint, for both yaws: 2 x 4^3 candidates at most, each in closed
-    form. The best one within limits is the optimum. Returns -1 (the iteration answers) for
-    a lateral pivot offset, a degenerate chain, a coupled limit the best one breaks, and a
-    yaw held at a limit with the target's projection on the arm's plane within reach (the
-    tool could then sit exactly on the projection, a case the collinearity does not cover).
+    form. Where the yaw is held at a limit, the tool may sit exactly on the target's
+    projection on the arm's plane (a case the collinearity does not cover): the closed form
+    (complete for free pitch where no coupled limit touches a pitch joint) says whether it
+    can. The best candidate within limits is the optimum. Returns -1 (the iteration answers)
+    for a lateral pivot offset, a degenerate chain, a coupled limit the best one breaks, or a
+    projection the closed form cannot decide.
     """
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
     if py != 0.0:
@@ -210,6 +215,10 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     p = np.empty(3)
     theta = np.empty(3)
     opt = np.empty(3, dtype=np.int64)
+    qs = np.empty((4, n))
+    ids = np.empty(4, dtype=np.int64)
+    errs = np.empty(4)
+    work = np.empty((4, 5))
     options = 4 ** nj
     reach = l1 + l2 + (l3 if nj == 3 else 0.0)
     for yi in range(n_yaws):
@@ -217,7 +226,17 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
         tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0  # the target projected on the arm's plane
         lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
         if lateral > 1e-12 and (tu - cu) ** 2 + (z - cz) ** 2 <= reach * reach:
-            return -1.0  # the yaw is held at a limit and the projection may be reached: not enumerated here
+            # the yaw is held at a limit and the target's projection on the arm's plane may be
+            # reached exactly (a case the collinearity does not cover): ask the closed form
+            if not exact_pitch_search:
+                return -1.0  # (it is complete only where no coupled limit touches a pitch joint)
+            code, m, _ = solve_one(P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, ref,
+                                   tu * math.cos(psi), tu * math.sin(psi), z, FREE_PREFS, qs, ids, errs, work)
+            if code != NONE and lateral * lateral < best - 1e-30:
+                best = lateral * lateral
+                q_out[:] = qs[0]
+            if code != NONE:
+                continue  # nothing at this yaw is nearer than the projection itself
         for code in range(options):
             # joint k: option 0/1 free (pointing along the line / back), 2 at its lower, 3 at its upper bound
             c = code
@@ -295,15 +314,15 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
 
 @jit
 def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                   clo: FloatArray, chi: FloatArray, target: FloatArray, pitch: float, w2: float,
-                   ref: FloatArray, atlas_q: FloatArray, atlas_p: FloatArray, n_atlas: int,
-                   q_out: FloatArray) -> tuple[float, float, int]:
+                   clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool,
+                   target: FloatArray, pitch: float, w2: float, ref: FloatArray, atlas_q: FloatArray,
+                   atlas_p: FloatArray, n_atlas: int, q_out: FloatArray) -> tuple[float, float, int]:
     """The enumerated optimum where it applies (:func:`closest_box`, free pitch only); else
     the best of :func:`refine_family` from ``ref`` (if within limits) and
     the ``n_atlas`` atlas configurations whose tool points are nearest the target:
     (error, pitch error, iterations)."""
     if w2 == 0.0:
-        err = closest_box(P, J, lower, upper, C, clo, chi, target, ref, q_out)
+        err = closest_box(P, J, lower, upper, C, clo, chi, weights, exact_pitch_search, target, ref, q_out)
         if err >= 0.0:
             return err, 0.0, 0
     n = ref.shape[0]

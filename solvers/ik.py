@@ -302,9 +302,9 @@ def _closest(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray,
         fp = arm.fp
         q = np.empty(fp.n)
         w2 = _PITCH_WEIGHT**2 if (pitch is not None and fp.has_wrist) else 0.0
-        err, perr, its = closest_family(fp.P, fp.J, arm.lower, arm.upper, arm.C, arm.clo, arm.chi, point,
-                                        0.0 if pitch is None else pitch, w2, ref, arm.atlas_q, arm.atlas_p,
-                                        _ATLAS_STARTS, q)
+        err, perr, its = closest_family(fp.P, fp.J, arm.lower, arm.upper, arm.C, arm.clo, arm.chi, arm.weights,
+                                        arm.exact_pitch_search, point, 0.0 if pitch is None else pitch, w2, ref,
+                                        arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q)
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     starts = []
     if arm.fp is not None:

@@ -172,7 +172,8 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         if r.status != "unreachable":
             continue  # (the enumeration is asked only when no configuration reaches the target)
         q = np.empty(arm.nq)
-        err = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, target, arm.neutral, q)
+        err = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, target,
+                          arm.neutral, q)
         if err < 0:
             continue
         used += 1

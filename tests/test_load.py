@@ -20,7 +20,8 @@ def test_load_with_a_stop_in_it(router: str, service: Service, adapter_session: 
         r = run(router, clients=2, threads=2, seconds=4.0, idle_stops=1)
     finally:
         sim.close()
-    assert r["lost"] == 0 and r["wrong"] == 0, r["verbs"]
+    summary = {k: (v["lost"], v["wrong"], v["codes"]) for k, v in r["verbs"].items()}
+    assert r["lost"] == 0 and r["wrong"] == 0, f"(lost, wrong, error codes) per verb: {summary}; {r['lost_detail']}"
     verbs = r["verbs"]
     assert {"ik", "fk", "plan", "batch", "bad"} <= set(verbs)
     assert all(v["ok"] == 0 for k, v in verbs.items() if k == "bad")
