@@ -80,35 +80,39 @@ def evaluate(tables: FloatArray, seg_starts: FloatArray, seg_durations: FloatArr
 
 @jit
 def all_clear(P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray, coupled: FloatArray,
-              angles: FloatArray, lower: FloatArray, upper: FloatArray, clo: FloatArray, chi: FloatArray,
-              vmax: FloatArray, amax: FloatArray, jmax: FloatArray, angle_lo: FloatArray, angle_hi: FloatArray,
-              gain: FloatArray, bias: FloatArray, cmd_lo: FloatArray, cmd_hi: FloatArray, position_tol: float,
-              rate_tol: float, angle_tol: float, commands: IntArray) -> bool:
+              angles: FloatArray, joints: FloatArray, couplings: FloatArray, actuators: FloatArray,
+              tolerances: FloatArray, commands: IntArray) -> bool:
     """True when every sample is clearly inside every limit (by MARGIN more than the checks
-    ask); ``coupled`` (samples x coupled limits) and ``angles`` (samples x actuators) are the
-    samples' coupled-limit values and actuator angles; ``commands`` gets rint(angle * gain +
-    bias)."""
+    ask); ``commands`` gets rint(angle * gain + bias).
+
+    ``coupled`` (samples x coupled limits) and ``angles`` (samples x actuators) are the
+    samples' coupled-limit values and actuator angles. The limits, packed (few arguments:
+    each costs a compiled call some time): ``joints`` rows lower, upper, vmax, amax, jmax;
+    ``couplings`` rows lower, upper; ``actuators`` rows angle lo, angle hi, gain, bias,
+    command lo, command hi; ``tolerances`` = (position, rate (relative), actuator angle).
+    """
+    position_tol, rate_tol, angle_tol = tolerances[0], tolerances[1], tolerances[2]
     n, dofs = P.shape[0], P.shape[1]
     for i in range(n):
         for d in range(dofs):
             p, v, a, jk = P[i, d], V[i, d], A[i, d], Jk[i, d]
             if not (np.isfinite(p) and np.isfinite(v) and np.isfinite(a) and np.isfinite(jk)):
                 return False
-            if p < lower[d] - position_tol + MARGIN or p > upper[d] + position_tol - MARGIN:
+            if p < joints[0, d] - position_tol + MARGIN or p > joints[1, d] + position_tol - MARGIN:
                 return False
-            if abs(v) > vmax[d] * (1 + rate_tol) - MARGIN or abs(a) > amax[d] * (1 + rate_tol) - MARGIN \
-                    or abs(jk) > jmax[d] * (1 + rate_tol) - MARGIN:
+            if abs(v) > joints[2, d] * (1 + rate_tol) - MARGIN or abs(a) > joints[3, d] * (1 + rate_tol) - MARGIN \
+                    or abs(jk) > joints[4, d] * (1 + rate_tol) - MARGIN:
                 return False
         for c in range(coupled.shape[1]):
             x = coupled[i, c]
-            if not (x >= clo[c] - position_tol + MARGIN and x <= chi[c] + position_tol - MARGIN):
+            if not (x >= couplings[0, c] - position_tol + MARGIN and x <= couplings[1, c] + position_tol - MARGIN):
                 return False
         for k in range(angles.shape[1]):
             x = angles[i, k]
-            if not (x >= angle_lo[k] - angle_tol + MARGIN and x <= angle_hi[k] + angle_tol - MARGIN):
+            if not (x >= actuators[0, k] - angle_tol + MARGIN and x <= actuators[1, k] + angle_tol - MARGIN):
                 return False
-            cmd = np.rint(x * gain[k] + bias[k])
-            if cmd < cmd_lo[k] or cmd > cmd_hi[k]:
+            cmd = np.rint(x * actuators[2, k] + actuators[3, k])
+            if cmd < actuators[4, k] or cmd > actuators[5, k]:
                 return False
             commands[i, k] = np.int64(cmd)
     return True

@@ -45,10 +45,26 @@ class Limits:
     acceleration: FloatArray
     jerk: FloatArray
 
+    @functools.cached_property
+    def lists(self) -> tuple[list[float], list[float], list[float]]:
+        """The three as lists, as Ruckig's input takes them (the instances are cached per speed)."""
+        return self.velocity.tolist(), self.acceleration.tolist(), self.jerk.tolist()
+
     @classmethod
     def of(cls, robot: Robot, speed: float) -> Limits:
+        key = (id(robot), speed)
+        held = _limits.get(key)
+        if held is not None and held[0] is robot:
+            return held[1]
         lim = robot.limits
-        return cls(lim.velocity * speed, lim.acceleration * speed**2, lim.jerk * speed**3)
+        limits = cls(lim.velocity * speed, lim.acceleration * speed**2, lim.jerk * speed**3)
+        if len(_limits) > 1024:  # speeds are free numbers: keep the cache small
+            _limits.clear()
+        _limits[key] = (robot, limits)
+        return limits
+
+
+_limits: dict[tuple[int, float], tuple[Robot, Limits]] = {}
 
 
 class RuckigPath:
@@ -64,6 +80,7 @@ class RuckigPath:
         self.durations = np.array(durations)
         self.starts = np.array(starts)
         self.duration = float(sum(durations))
+        self._tables: FloatArray | None = None
 
     def at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Position [rad], velocity [rad/s], acceleration [rad/s^2] at time ``t`` (clamped to the path)."""
@@ -86,9 +103,14 @@ class RuckigPath:
         evaluate(self.tables, self.starts, self.durations, np.asarray(times, dtype=float), dt, P, V, A, Jk)
         return P, V, A, Jk
 
-    @functools.cached_property
+    @property
     def tables(self) -> FloatArray:
         """Every segment's phase table, padded to one width: (segments, dofs, phases, 5)."""
+        if self._tables is None:
+            self._tables = self._phase_tables()
+        return self._tables
+
+    def _phase_tables(self) -> FloatArray:
         profiles = [seg.profiles[0] for seg in self.segments]
         if all(p.brake.duration <= 0 and p.accel.duration <= 0 for ps in profiles for p in ps):
             flat: list[float] = []  # the common case: seven phases per dof, read as five lists each
@@ -133,9 +155,7 @@ def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_veloc
     inp.current_position = start.position.tolist()
     inp.current_velocity = start.velocity.tolist()
     inp.current_acceleration = start.acceleration.tolist()
-    inp.max_velocity = limits.velocity.tolist()
-    inp.max_acceleration = limits.acceleration.tolist()
-    inp.max_jerk = limits.jerk.tolist()
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = limits.lists
     inp.duration_discretization = ruckig.DurationDiscretization.Discrete
     if interface_velocity:  # a stop: every joint brakes as hard as it may, not waiting for the others
         inp.control_interface = ruckig.ControlInterface.Velocity
@@ -250,8 +270,9 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
             v = np.zeros(robot.nq)
             traj = _segment(otg, state, goal, v, limits)
         segments.append(traj)
-        p, vel, acc = traj.at_time(traj.duration)
-        state = JointState(np.array(p), np.array(vel), np.array(acc))
+        if not last:  # where the next segment starts
+            p, vel, acc = traj.at_time(traj.duration)
+            state = JointState(np.array(p), np.array(vel), np.array(acc))
         prev = goal
     return RuckigPath(segments, robot.nq)
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -28,10 +27,9 @@ class JointState:
         z = np.zeros_like(position)
         return cls(np.asarray(position, dtype=float), z, z.copy())
 
-    @functools.cached_property
+    @property
     def moving(self) -> bool:
-        return any(abs(x) > 1e-9 for x in self.velocity.tolist()) or any(abs(x) > 1e-9
-                                                                          for x in self.acceleration.tolist())
+        return max(map(abs, self.velocity.tolist() + self.acceleration.tolist()), default=0.0) > 1e-9
 
     def to_dict(self) -> dict[str, Any]:
         return {"position": self.position.tolist(), "velocity": self.velocity.tolist(),

@@ -98,14 +98,15 @@ def forward_jerk(acceleration: FloatArray, dt: float) -> FloatArray:
 
 @dataclass(frozen=True)
 class _Gate:
-    """One arm's limits as the compiled gate takes them."""
+    """One arm's limits as the compiled gate takes them (packed: see :func:`all_clear`)."""
 
-    C: FloatArray
-    clo: FloatArray
-    chi: FloatArray
-    M: FloatArray
+    C: FloatArray  # coupled limits' coefficients (k, n)
+    M: FloatArray  # the actuator map's M (m, n): angles as ActuatorMap.angles computes them
     b: FloatArray
-    ranges: tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]
+    joints: FloatArray
+    couplings: FloatArray
+    actuators: FloatArray
+    tolerances: FloatArray
     names: tuple[str, ...]
     units: tuple[str, ...]
 
@@ -114,11 +115,15 @@ class _Gate:
         held = _gates.get(id(robot))
         if held is not None and held[0] is robot:
             return held[1]
-        co = robot.limits.coupled
-        gate = cls(np.array([c.coefficients for c in co]).reshape(len(co), robot.nq),
-                   np.array([c.lower for c in co], dtype=float), np.array([c.upper for c in co], dtype=float),
-                   robot.actuators.M, robot.actuators.b, robot.actuators.ranges,
-                   tuple(a.name for a in robot.actuators.actuators), tuple(a.unit for a in robot.actuators.actuators))
+        lim = robot.limits
+        co = lim.coupled
+        amap = robot.actuators
+        lo, hi, gain, bias, cmd_lo, cmd_hi, angle_tol = amap.ranges
+        gate = cls(np.array([c.coefficients for c in co]).reshape(len(co), robot.nq), amap.M,
+                   amap.b, np.array([lim.lower, lim.upper, lim.velocity, lim.acceleration, lim.jerk]),
+                   np.array([[c.lower for c in co], [c.upper for c in co]], dtype=float).reshape(2, len(co)),
+                   np.array([lo, hi, gain, bias, cmd_lo, cmd_hi]), np.array([POSITION_TOL, RATE_TOL, angle_tol]),
+                   tuple(a.name for a in amap.actuators), tuple(a.unit for a in amap.actuators))
         _gates[id(robot)] = (robot, gate)  # a dict write is atomic: threads at worst build it twice
         return gate
 
@@ -144,8 +149,7 @@ def build(robot: Robot, path: str, rate_hz: float, duration: float, times: Float
     clipped = np.minimum(np.maximum(position, lim.lower), lim.upper)
     commands = np.empty((len(times), len(gate.b)), dtype=np.int64)
     if not all_clear(position, velocity, acceleration, jerk, position @ gate.C.T, clipped @ gate.M.T + gate.b,
-                     lim.lower, lim.upper, gate.clo, gate.chi, lim.velocity, lim.acceleration, lim.jerk,
-                     *gate.ranges[:6], POSITION_TOL, RATE_TOL, gate.ranges[6], commands):
+                     gate.joints, gate.couplings, gate.actuators, gate.tolerances, commands):
         check_samples(robot, times, position, velocity, acceleration, jerk)
         commands = actuator_commands(robot, times, clipped)
     return Trajectory(
