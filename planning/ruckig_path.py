@@ -121,7 +121,8 @@ class RuckigPath:
                     flat += p.a[:7]
                     flat += p.v[:7]
                     flat += p.p[:7]
-            return np.array(flat).reshape(len(profiles), self.nq, 5, 7).transpose(0, 1, 3, 2)
+            # (contiguous, as the general case below: one compiled specialisation, not two)
+            return np.ascontiguousarray(np.array(flat).reshape(len(profiles), self.nq, 5, 7).transpose(0, 1, 3, 2))
         rows = [[_phases(prof) for prof in ps] for ps in profiles]
         width = max(len(r) for seg in rows for r in seg)
         flat = []

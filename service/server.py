@@ -87,13 +87,31 @@ class Service:
         log.info("armd service %s serving %s under %s/", self.id, ", ".join(self.arms), self.prefix)
 
     def _warm_up(self) -> None:
-        """Load the compiled solver code and each arm's solver state now, not on the first request."""
+        """Compile (or load from Numba's cache) the solver's and the planner's code, and build each
+        arm's solver state, now rather than on the first requests: compiling holds the GIL for
+        seconds on a cold cache, and every request in flight would wait."""
+        import planning
         import solvers
 
         for arm in self.arms.values():
             home = arm.fk(arm.neutral)
             solvers.solve_ik(arm, home)
             solvers.solve_ik(arm, 10.0 * home + 1.0)  # unreachable: the closest-point search's code and atlas
+        if not self.arms:
+            return
+        arm = next(iter(self.arms.values()))
+        mid = (arm.limits.lower + arm.limits.upper) / 2
+        for goal in (mid, arm.neutral):  # a joint plan, and (from a moving state) a stop: the compiled sampling
+            if not arm.limits.contains(goal):
+                continue
+            try:
+                moving = planning.plan(arm, arm.neutral, goal).at(0.2)
+                planning.plan_stop(arm, moving)
+                planning.plan(arm, moving, arm.neutral)  # from a moving state: brake profiles
+                planning.plan(arm, arm.neutral, {"target": (arm.fk(arm.neutral) + 0.005).tolist()}, path="line")
+            except ArmdError:  # an arm where these happen not to plan: the warm-up is only an optimisation
+                continue
+            break
 
     # -- queries ------------------------------------------------------------------------
 
