@@ -95,10 +95,13 @@ class Robot:
 
     def joint_vector(self, q: object, field: str = "q") -> FloatArray:
         """``q`` as a float array of this arm's length, all finite; else :class:`BadRequest`."""
-        if type(q) is np.ndarray and q.shape == (self.nq,) and q.dtype == np.float64 and math.isfinite(sum(q.tolist())):
+        if type(q) is np.ndarray and q.shape == (self.nq,) and q.dtype == np.float64 and q.flags.c_contiguous \
+                and q.flags.writeable and math.isfinite(sum(q.tolist())):
             return q  # the common case: already a finite vector of the right length
         try:
-            arr = np.asarray(q, dtype=float)
+            # a contiguous, writable copy: compiled code sees one array type (a view of a broadcast
+            # array is read-only, another type, and would be compiled anew, for seconds)
+            arr = np.array(q, dtype=float)
         except (TypeError, ValueError):
             raise BadRequest(f"{field} must be a list of {self.nq} numbers [rad]", field=field) from None
         if arr.shape != (self.nq,):

@@ -89,29 +89,12 @@ class Service:
     def _warm_up(self) -> None:
         """Compile (or load from Numba's cache) the solver's and the planner's code, and build each
         arm's solver state, now rather than on the first requests: compiling holds the GIL for
-        seconds on a cold cache, and every request in flight would wait."""
-        import planning
-        import solvers
-
+        seconds on a cold cache, and every request in flight would wait behind it. Each arm
+        takes every path a request can: IK reachable and not, with an approach, batches with
+        one approach and with one per target, joint plans from rest and while moving, a stop,
+        a line."""
         for arm in self.arms.values():
-            home = arm.fk(arm.neutral)
-            solvers.solve_ik(arm, home)
-            solvers.solve_ik(arm, 10.0 * home + 1.0)  # unreachable: the closest-point search's code and atlas
-        if not self.arms:
-            return
-        arm = next(iter(self.arms.values()))
-        mid = (arm.limits.lower + arm.limits.upper) / 2
-        for goal in (mid, arm.neutral):  # a joint plan, and (from a moving state) a stop: the compiled sampling
-            if not arm.limits.contains(goal):
-                continue
-            try:
-                moving = planning.plan(arm, arm.neutral, goal).at(0.2)
-                planning.plan_stop(arm, moving)
-                planning.plan(arm, moving, arm.neutral)  # from a moving state: brake profiles
-                planning.plan(arm, arm.neutral, {"target": (arm.fk(arm.neutral) + 0.005).tolist()}, path="line")
-            except ArmdError:  # an arm where these happen not to plan: the warm-up is only an optimisation
-                continue
-            break
+            _warm_arm(arm)
 
     # -- queries ------------------------------------------------------------------------
 
@@ -272,3 +255,33 @@ class Service:
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._stops.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
+
+
+def _attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:
+    """``fn(*args, **kwargs)``, or None where it refuses (a warm-up path an arm does not take)."""
+    try:
+        return fn(*args, **kwargs)
+    except ArmdError:
+        return None
+
+
+def _warm_arm(arm: Robot) -> None:
+    import planning
+    import solvers
+
+    home = arm.fk(arm.neutral)
+    far = 10.0 * home + 1.0  # unreachable: the closest-point code and the arm's atlas
+    _attempt(solvers.solve_ik, arm, home)
+    _attempt(solvers.solve_ik, arm, far)
+    _attempt(solvers.solve_ik_batch, arm, [home, far])
+    if arm.geometry is not None and arm.geometry.has_wrist:
+        _attempt(solvers.solve_ik, arm, home, approach="parallel")
+        _attempt(solvers.solve_ik, arm, far, approach="perpendicular")
+        _attempt(solvers.solve_ik_batch, arm, [home, home], approach=[0.0, 0.1])
+    mid = (arm.limits.lower + arm.limits.upper) / 2
+    if arm.limits.contains(mid):
+        there = _attempt(planning.plan, arm, arm.neutral, mid)
+        if there is not None:
+            _attempt(planning.plan_stop, arm, there.at(0.2))
+            _attempt(planning.plan, arm, there.at(0.2), arm.neutral)  # from a moving state
+    _attempt(planning.plan, arm, arm.neutral, {"target": (home - 0.01).tolist()}, path="line")

@@ -144,7 +144,7 @@ def solve_ik_batch(
         prefs = np.ascontiguousarray(pitches.reshape(m, 1))
     else:
         shared = FREE_PITCHES if pitch is None else np.array([pitch])
-        prefs = np.broadcast_to(shared, (m, len(shared)))
+        prefs = np.ascontiguousarray(np.broadcast_to(shared, (m, len(shared))))  # (one compiled layout)
     codes = np.empty(m, dtype=np.int64)
     ids = np.empty(m, dtype=np.int64)
     solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
@@ -191,7 +191,7 @@ def reachable(robot: Robot, targets: object, *, approach: object = None,
     m, n = len(pts), robot.nq
     refs = np.ascontiguousarray(np.broadcast_to(robot.neutral, (m, n)))
     shared = FREE_PITCHES if pitch is None else np.array([pitch])
-    prefs = np.broadcast_to(shared, (m, len(shared)))
+    prefs = np.ascontiguousarray(np.broadcast_to(shared, (m, len(shared))))
     q, reached = np.empty((m, n)), np.empty((m, 3))
     codes, ids = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
     pitch_out, err = np.empty(m), np.empty(m)
