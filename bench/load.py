@@ -344,14 +344,9 @@ def report(r: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
 def main() -> None:
+    from bench.fuzz import rss_mb  # (one reader of /proc for both benchmarks)
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=20.0, help="length of the load (default 20)")
     ap.add_argument("--clients", type=int, default=4, help="load processes (default 4)")
@@ -381,13 +376,13 @@ def main() -> None:
         if "armd serving" not in line:
             raise RuntimeError(f"armd serve did not start: {line!r}")
     try:
-        before = _rss_mb(service.pid) if service else float("nan")
+        before = rss_mb(service.pid) if service else float("nan")
         t0 = time.monotonic()
         r = run(endpoint, clients=args.clients, threads=args.threads, seconds=args.seconds,
                 idle_stops=args.idle_stops)
         r["wall_s"] = time.monotonic() - t0
         if service:
-            r["service_rss_mb"] = {"before": before, "after": _rss_mb(service.pid)}
+            r["service_rss_mb"] = {"before": before, "after": rss_mb(service.pid)}
         r["load_avg"] = os.getloadavg()
         print(report(r))
         if service:
