@@ -6,6 +6,8 @@ For each arm: N random configurations inside every joint limit (box and coupled)
 its tool point, recomputed here with ``robot.fk``, is within ``--tol`` (1e-6 m) of the
 target and it is inside every joint limit (``robot.limits.contains``, which includes
 desk4's coupled limit). Times are ``time.perf_counter_ns`` around the solver call alone.
+The solvers take turns on each case, 100 targets at a time in rotating order, so that the
+machine's slow stretches (its speed wanders ~2x over minutes) fall on all of them alike.
 Extra cases, from the neutral seed: reachable targets of configurations with joints on
 their limits, and unreachable targets (1.1x and 1.5x an upper bound of the arm's reach, and
 near the yaw axis), which a solver should give up on quickly. Each arm runs in a worker
@@ -181,58 +183,70 @@ def reproducer(arm: str, target: np.ndarray, seed: np.ndarray | None) -> str:
     )
 
 
-def run_case(adapter: peers.Adapter, robot: Any, case: Case, targets: np.ndarray, seeds: np.ndarray,
-             truth: np.ndarray | None, tol: float, problems: Problems | None, crumb: Crumb | None = None,
-             crashed: set[int] | frozenset[int] = frozenset()) -> Case:
-    """Solve every target once from its seed, timing the solver call alone, and check each answer.
+class CaseRun:
+    """One solver on one case, run in chunks (:data:`CHUNK`) so that solvers can take turns.
 
-    ``crashed``: indices whose call killed an earlier worker; they count as failures, uncalled.
+    Every target is solved once from its seed, timing the solver call alone, and each answer
+    is checked. ``crashed``: indices whose call killed an earlier worker; they count as
+    failures, uncalled.
     """
-    crumb = crumb or Crumb(None)
-    case.crashed_indices = frozenset(crashed)
-    prepared = [adapter.prepare(t) for t in targets]
-    for i in [i for i in range(len(targets)) if i not in crashed][:WARMUP]:  # fill caches, compile
-        crumb.at(case.solver, case.case, i)
-        with contextlib.suppress(Exception):
-            adapter.call(prepared[i], seeds[i])
-    case.n = len(targets)
-    case.load_before = os.getloadavg()[0]
-    case.claimed_known = adapter.name in ("armd", "rtb")
-    gc.collect()
-    wall = time.perf_counter()
-    clock = time.perf_counter_ns
-    for i in range(len(targets)):
-        if i in crashed:
-            case.crashes += 1
-            case.no_answer += 1
-            continue
-        seed = seeds[i]
-        err_text = trace = None
-        crumb.at(case.solver, case.case, i)
-        t0 = clock()
-        try:
-            raw = adapter.call(prepared[i], seed)
-        except Exception as e:  # counted, never fatal: a solver that raises fails that target
-            t1 = clock()
-            raw = None
-            err_text = f"{type(e).__name__}: {e}"
-            trace = traceback.format_exc(limit=-3)
-        else:
-            t1 = clock()
-        case.times_ns.append(t1 - t0)
-        if raw is None:
-            case.exceptions += 1
-            case.no_answer += 1
-            if problems is not None:
-                problems.add("exception", {"arm": case.arm, "case": case.case, "error": err_text, "trace": trace,
-                                           "reproducer": reproducer(case.arm, targets[i], seed)})
-            continue
-        check(adapter, robot, case, raw, targets[i], seed, None if truth is None else truth[i], tol, problems,
-              (t1 - t0))
-    case.wall_s = time.perf_counter() - wall
-    if problems is not None and case.times_ns:
-        slow_report(adapter, case, prepared, targets, seeds, problems, crumb)
-    return case
+
+    def __init__(self, adapter: peers.Adapter, robot: Any, case: Case, targets: np.ndarray, seeds: np.ndarray,
+                 truth: np.ndarray | None, tol: float, problems: Problems | None, crumb: Crumb | None = None,
+                 crashed: set[int] | frozenset[int] = frozenset()) -> None:
+        self.adapter, self.robot, self.case = adapter, robot, case
+        self.targets, self.seeds, self.truth, self.tol, self.problems = targets, seeds, truth, tol, problems
+        self.crumb = crumb or Crumb(None)
+        self.crashed = frozenset(crashed)
+        case.crashed_indices = self.crashed
+        self.prepared = [adapter.prepare(t) for t in targets]
+        for i in [i for i in range(len(targets)) if i not in self.crashed][:WARMUP]:  # fill caches, compile
+            self.crumb.at(case.solver, case.case, i)
+            with contextlib.suppress(Exception):
+                adapter.call(self.prepared[i], seeds[i])
+        case.n = len(targets)
+        case.load_before = os.getloadavg()[0]
+        case.claimed_known = adapter.name in ("armd", "rtb")
+
+    def run(self, lo: int, hi: int) -> None:
+        """Targets ``lo`` to ``hi`` (clipped to this case's count)."""
+        case, adapter, crumb, problems = self.case, self.adapter, self.crumb, self.problems
+        wall = time.perf_counter()
+        clock = time.perf_counter_ns
+        for i in range(lo, min(hi, case.n)):
+            if i in self.crashed:
+                case.crashes += 1
+                case.no_answer += 1
+                continue
+            seed = self.seeds[i]
+            err_text = trace = None
+            crumb.at(case.solver, case.case, i)
+            t0 = clock()
+            try:
+                raw = adapter.call(self.prepared[i], seed)
+            except Exception as e:  # counted, never fatal: a solver that raises fails that target
+                t1 = clock()
+                raw = None
+                err_text = f"{type(e).__name__}: {e}"
+                trace = traceback.format_exc(limit=-3)
+            else:
+                t1 = clock()
+            case.times_ns.append(t1 - t0)
+            if raw is None:
+                case.exceptions += 1
+                case.no_answer += 1
+                if problems is not None:
+                    problems.add("exception", {"arm": case.arm, "case": case.case, "error": err_text, "trace": trace,
+                                               "reproducer": reproducer(case.arm, self.targets[i], seed)})
+                continue
+            check(adapter, self.robot, case, raw, self.targets[i], seed, None if self.truth is None else self.truth[i],
+                  self.tol, problems, (t1 - t0))
+        case.wall_s += time.perf_counter() - wall
+
+    def finish(self) -> Case:
+        if self.problems is not None and self.case.times_ns:
+            slow_report(self.adapter, self.case, self.prepared, self.targets, self.seeds, self.problems, self.crumb)
+        return self.case
 
 
 def check(adapter: peers.Adapter, robot: Any, case: Case, raw: Any, target: np.ndarray, seed: np.ndarray,
@@ -566,6 +580,7 @@ def log(msg: str) -> None:
 
 
 CASES = ("neutral", "random", "at_limits", "out_near", "out_far", "out_axis")
+CHUNK = 100  # targets per turn when the solvers take turns on a case
 MAX_RESTARTS = 20  # worker crashes tolerated per arm (each skips the target that crashed)
 
 
@@ -631,28 +646,41 @@ def worker(args: argparse.Namespace) -> int:
     if not skip["done"] and not skip["crashed"]:
         log(f"{arm_name}: {robot.nq} joints, reach bound {s.reach:.4f} m")
     record("arm", info={"nq": robot.nq, "reach_bound_m": s.reach})
+    adapters: dict[str, peers.Adapter] = {}
     for solver in args.solvers:
         if all((solver, c) in done for c in CASES):
             continue
         try:
-            adapter = peers.SOLVERS[solver](robot, args.tol)
+            adapters[solver] = peers.SOLVERS[solver](robot, args.tol)
         except peers.Unavailable as e:
             record("solver", solver=solver, info={"unavailable": str(e)})
             log(f"  {solver}: not run: {e}")
             continue
-        record("solver", solver=solver, info={"source": adapter.source, "fk_error": adapter.fk_error})
-        for case_name in CASES:
+        record("solver", solver=solver, info={"source": adapters[solver].source,
+                                              "fk_error": adapters[solver].fk_error})
+    for case_name in CASES:
+        runs: list[CaseRun] = []
+        for solver, adapter in adapters.items():
             if (solver, case_name) in done:
                 continue
             targets, seeds, truth, reachable = case_inputs(robot, s, args, solver, case_name)
             problems = Problems() if solver == "armd" else None
-            case = run_case(adapter, robot, Case(arm_name, solver, case_name, reachable), targets, seeds, truth,
-                            args.tol, problems, crumb, crashed.get((solver, case_name), set()))
+            runs.append(CaseRun(adapter, robot, Case(arm_name, solver, case_name, reachable), targets, seeds, truth,
+                                args.tol, problems, crumb, crashed.get((solver, case_name), set())))
+        # the solvers take turns, a chunk each (the order rotating), so that the machine's slow
+        # stretches fall on every solver alike and the ratios between them are fair
+        gc.collect()
+        longest = max((r.case.n for r in runs), default=0)
+        for turn, lo in enumerate(range(0, longest, CHUNK)):
+            for k in range(len(runs)):
+                runs[(turn + k) % len(runs)].run(lo, lo + CHUNK)
+        for r in runs:
+            case = r.finish()
             row = case.row()
-            record("case", solver=solver, case=case_name, row=row,
-                   problems=problems.as_json() if problems is not None else {})
-            rate = f"{100 * row['success_rate']:.2f}% ok, " if reachable else ""
-            log(f"  {solver:5s} {case_name:9s} n={row['n']:<6} {rate}median {fmt_us(row['median_us'])} us, "
+            record("case", solver=case.solver, case=case_name, row=row,
+                   problems=r.problems.as_json() if r.problems is not None else {})
+            rate = f"{100 * row['success_rate']:.2f}% ok, " if case.reachable else ""
+            log(f"  {case.solver:5s} {case_name:9s} n={row['n']:<6} {rate}median {fmt_us(row['median_us'])} us, "
                 f"p99 {fmt_us(row['p99_us'])} us ({row['wall_s']:.1f} s)")
     if ("armd" in args.solvers and not args.no_batch and ("armd", "batch") not in done
             and ("armd", "batch") not in crashed):

@@ -57,6 +57,27 @@ def solve_one(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, 
 
 
 @jit
+def solve_point(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, weights: FloatArray,
+                C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, level: bool,
+                ref: FloatArray, point: FloatArray, prefs: FloatArray, qs: FloatArray, ids: IntArray,
+                errs: FloatArray, work: FloatArray, reached: FloatArray) -> tuple[int, int, float, float]:
+    """:func:`solve_one` for ``point`` (3,), then the first (chosen) branch's tool point into
+    ``reached`` and the sum of its pitch joints (the tool pitch, not wrapped; 0 for a level
+    arm): (code, branches, pitch used, pitch joints' sum). One call for
+    the whole closed-form stage of a single-target IK: Python's part is only the answer's objects."""
+    code, m, phi = solve_one(P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, ref,
+                             point[0], point[1], point[2], prefs, qs, ids, errs, work)
+    pitch = 0.0
+    if m > 0:
+        family_fk(P, J, qs[0], reached)
+        if not level:
+            for k in range(1, 4):
+                if J[k] >= 0:
+                    pitch += qs[0, J[k]]
+    return code, m, phi, pitch
+
+
+@jit
 def solve_many(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, weights: FloatArray,
                C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, refs: FloatArray,
                points: FloatArray, prefs: FloatArray, q_out: FloatArray, code_out: IntArray,

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from robots import BadRequest, Robot
 
-from .analytic import EXACT, NONE, solve_one
+from .analytic import EXACT, NONE, solve_point
 from .closest import closest_family
 from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches, family_fk
 from .qp import QPRefiner
@@ -62,6 +62,7 @@ class _Buffers(threading.local):
         self.ids = np.empty(4, dtype=np.int64)
         self.errs = np.empty(4)
         self.work = np.empty((4, 5))
+        self.reached = np.empty(3)
 
 
 @dataclass
@@ -79,6 +80,7 @@ class _Arm:
     chi: FloatArray
     exact: bool  # [geometry] reproduces the URDF's FK to 1e-12 m: branch errors by formula
     exact_pitch_search: bool  # no coupled limit touches a pitch joint: boundary pitches are exact
+    level: bool  # the tool pitch is held level by a linkage: always 0
     atlas_q: FloatArray  # in-limit configurations spread over joint space (closest-point starts) [rad]
     atlas_p: FloatArray  # their tool points [m]
     buffers: _Buffers
@@ -114,7 +116,8 @@ def _arm(robot: Robot) -> _Arm:
         atlas_q = _atlas(robot)
         arm = _Arm(robot, fp, QPRefiner(robot), lim.lower.copy(), lim.upper.copy(), 1.0 / lim.velocity, C,
                    np.array([c.lower for c in lim.coupled]), np.array([c.upper for c in lim.coupled]),
-                   exact, pitch_free, atlas_q, np.array([robot.fk(q) for q in atlas_q]), _Buffers(robot.nq))
+                   exact, pitch_free, robot.geometry is not None and robot.geometry.level, atlas_q,
+                   np.array([robot.fk(q) for q in atlas_q]), _Buffers(robot.nq))
         _cache[id(robot)] = arm
     return arm
 
@@ -220,34 +223,36 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
     assert fp is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
-    x, y, z = point.tolist()
-    code, m, phi = solve_one(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi,
-                             arm.exact_pitch_search, ref, x, y, z, prefs, b.qs, b.ids, b.errs, b.work)
+    code, m, phi, pitch_sum = solve_point(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi,
+                                          arm.exact_pitch_search, arm.level, ref, point, prefs, b.qs, b.ids, b.errs,
+                                          b.work, b.reached)
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0)
-    qs = b.qs[:m].copy()
-    rows = [(BRANCH_NAMES[i], qs[r], e) for r, (i, e) in enumerate(zip(b.ids[:m].tolist(), b.errs[:m].tolist(),
-                                                                       strict=True))]
-    iterations = 0
-    if arm.exact:  # the formula is the URDF's FK: no refinement; _result checks the chosen one by Pinocchio
-        found = [Branch(name, q, err) for name, q, err in rows]
-    else:
-        found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
-    if not found:
-        return _closest(arm, point, pitch, ref, tolerance, iterations)
     if code == EXACT or pitch is None:
         status, reason = OK, None
     else:
         status = APPROXIMATE
         reason = (f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
                   f"the nearest reachable pitch is {phi:.4f} rad")
-    result = _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
-    if result.position_error > tolerance and arm.exact:  # never "ok" off target: take the checked path
-        found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
-        if not found:
-            return _closest(arm, point, pitch, ref, tolerance, iterations)
-        result = _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
-    return result
+    qs = b.qs[:m].copy()
+    names = [BRANCH_NAMES[i] for i in b.ids[:m].tolist()]
+    errs = b.errs[:m].tolist()
+    if arm.exact and errs[0] <= tolerance:
+        # the formula is the URDF's FK (checked against Pinocchio when the arm was first seen), so
+        # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage
+        reached_pitch = math.remainder(pitch_sum, TWO_PI)
+        return IKResult(
+            status=status, q=qs[0], position_error=errs[0], reached=b.reached.copy(), target=point,
+            pitch=reached_pitch, pitch_error=None if pitch is None else math.remainder(reached_pitch - pitch, TWO_PI),
+            branch=names[0], branches=tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]),
+            iterations=0, reason=None if status == OK else reason)
+    # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
+    # target): each branch checked on the exact model and refined by the QP where it misses
+    rows = [(names[r], qs[r], errs[r]) for r in range(m)]
+    found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
+    if not found:
+        return _closest(arm, point, pitch, ref, tolerance, iterations)
+    return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
 
 
 def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray) -> FloatArray | None:
