@@ -25,7 +25,7 @@ from service.zconfig import network_config
 from tests.conftest import wait_for
 
 ARM = "gupta3"
-SLOW_ARM = "desk4"  # its closest points to unreachable targets are iterated, not enumerated: slow work
+SLOW_ARM = "insomniac"  # its closest points at an asked pitch are iterated, not enumerated: slow work
 
 
 @dataclass
@@ -98,14 +98,15 @@ def slow(served: Any) -> Served:
 
 
 def unreachable_batch(n: int) -> dict[str, Any]:
-    """n targets for SLOW_ARM, far above and below its base, a hair off the yaw axis: each is
-    answered by the closest-point iteration (~1-2 ms here), so n = 20,000 is tens of seconds
-    of work."""
+    """n targets for SLOW_ARM, far above and below its base, a hair off the yaw axis, the tool
+    asked to point down: each is answered by the closest-point iteration with the pitch task
+    (~1-2 ms here), so n = 20,000 is tens of seconds of work."""
     rng = np.random.default_rng(3)
     off = 10.0 ** rng.uniform(-6, -3, size=n)
     angle = rng.uniform(-np.pi, np.pi, size=n)
     z = rng.choice([-1.0, 1.0], size=n) * rng.uniform(0.5, 0.8, size=n)
-    return {"targets": np.round(np.column_stack([off * np.cos(angle), off * np.sin(angle), z]), 9).tolist()}
+    return {"targets": np.round(np.column_stack([off * np.cos(angle), off * np.sin(angle), z]), 9).tolist(),
+            "approach": "perpendicular"}
 
 
 def test_limits_refuse_nonsense() -> None:
