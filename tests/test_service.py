@@ -140,6 +140,27 @@ def test_internal_errors_are_answered_and_the_service_lives_on(client: ArmClient
     assert client.fk("gupta3", [0, 1, -1]).within_limits
 
 
+def test_counters_and_the_debug_line(client: ArmClient, service: object, caplog: pytest.LogCaptureFixture) -> None:
+    """Quick requests (answered on the receiving thread) are counted served, errors as errors,
+    never in flight; with the level at debug, each request is logged with its outcome and time."""
+    import logging
+
+    from tests.conftest import wait_for
+
+    before = service.stats()  # type: ignore[attr-defined]
+    with caplog.at_level(logging.DEBUG, logger="armd.service"):
+        assert client.fk("gupta3", [0, 1, -1]).within_limits
+        assert raw(client, "gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "aproach": 1}')[0] == "err"
+        assert raw(client, "*/fk", b'{"q": [0, 1, -1]}')[1]["code"] == "unknown_robot"  # a glob is no robot
+        wait_for(lambda: sum(r.getMessage().startswith("armd/") for r in caplog.records) >= 3, what="three debug lines")
+    after = service.stats()  # type: ignore[attr-defined]
+    assert after["served"] - before["served"] == 3 and after["errors"] - before["errors"] == 2
+    assert after["in_flight"] == 0
+    lines = [r.getMessage() for r in caplog.records if r.name == "armd.service"]
+    assert any(m.startswith("armd/gupta3/fk ok in ") and m.endswith(" ms") for m in lines), lines
+    assert any(m.startswith("armd/gupta3/ik error in ") for m in lines), lines
+
+
 def test_concurrent_clients(router: str, service: object) -> None:
     arm = robots.load("sg5ut")
     targets = [arm.fk(q) for q in random_in_limits(arm, 40, seed=52)]
