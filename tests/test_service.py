@@ -161,6 +161,26 @@ def test_counters_and_the_debug_line(client: ArmClient, service: object, caplog:
     assert any(m.startswith("armd/gupta3/ik error in ") for m in lines), lines
 
 
+def test_arm_client_keeps_a_querier_per_key(router: str, service: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    import clients.client as module
+
+    with ArmClient(router, timeout=10.0, deadline=5.0) as c:
+        req = {"q": [0, 1, -1]}
+        for _ in range(3):
+            assert c.call("gupta3/fk", req)["within_limits"]
+        assert req == {"q": [0, 1, -1]}  # the client's deadline went into the payload, not into the caller's dict
+        assert list(c._queriers) == [("gupta3/fk", 10.0)]
+        assert c.call("gupta3/fk", req, timeout=7.0)["within_limits"]  # a timeout of its own: a querier of its own
+        assert set(c._queriers) == {("gupta3/fk", 10.0), ("gupta3/fk", 7.0)}
+        monkeypatch.setattr(module, "MAX_QUERIERS", 2)
+        for _ in range(2):  # past the bound: still answered, nothing more kept
+            assert c.ik("insomniac", [0.25, 0.05, 0.12]).status in ("ok", "approximate", "unreachable")
+        assert len(c._queriers) == 2
+        with pytest.raises(ServiceError) as e:  # errors come back the same way through a kept querier
+            c.call("gupta3/fk", {"q": [0, 1]})
+        assert e.value.code == "bad_request" and e.value.field == "q"
+
+
 def test_concurrent_clients(router: str, service: object) -> None:
     arm = robots.load("sg5ut")
     targets = [arm.fk(q) for q in random_in_limits(arm, 40, seed=52)]
