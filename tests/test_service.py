@@ -181,6 +181,30 @@ def test_arm_client_keeps_a_querier_per_key(router: str, service: object, monkey
         assert e.value.code == "bad_request" and e.value.field == "q"
 
 
+def test_one_arm_client_shared_by_threads(router: str, service: object) -> None:
+    """Threads asking through one client share its querier: each gets its own reply."""
+    arm = robots.load("sg5ut")
+    targets = [arm.fk(q) for q in random_in_limits(arm, 48, seed=53)]
+    expected = [solvers.solve_ik(arm, t).q for t in targets]
+    failures: list[str] = []
+    with ArmClient(router, timeout=10.0) as c:
+        def worker(k: int) -> None:
+            for i in range(k, len(targets), 8):
+                try:
+                    if not np.allclose(c.ik("sg5ut", targets[i]).q, expected[i], atol=1e-12):
+                        failures.append(f"wrong answer {i}")
+                except Exception as e:
+                    failures.append(repr(e))
+
+        threads = [threading.Thread(target=worker, args=(k,)) for k in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert list(c._queriers) == [("sg5ut/ik", 10.0)]
+    assert failures == []
+
+
 def test_concurrent_clients(router: str, service: object) -> None:
     arm = robots.load("sg5ut")
     targets = [arm.fk(q) for q in random_in_limits(arm, 40, seed=52)]
