@@ -8,7 +8,9 @@ same router, so a request takes the same path to either.
 * latency: one client process interleaves IK requests (targets from FK of random in-limit
   configurations) through ``ArmClient.ik`` and as a bare Zenoh get whose reply is parsed
   with ``json.loads`` (what a client in any language does), and echo requests of the same
-  payload; p50 and p99 of each, and the ratios to the echo.
+  payload; p50 and p99 of each, and the ratios to the echo. The bare gets are a
+  ``session.get`` per request, for the IK and the echo alike; ``ArmClient`` keeps a querier
+  per key (docs/protocol.md), which costs its process less per request.
 * throughput: 4 client processes send IK requests back to back for ``--seconds``; replies
   per second, and requests that got no reply (lost); then the same against the echo (the
   peer: what this machine's Zenoh and Python clients can carry at all).

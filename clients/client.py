@@ -23,6 +23,7 @@ from service.zconfig import client_config
 
 FloatArray = NDArray[np.float64]
 JSON = zenoh.Encoding.APPLICATION_JSON
+MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
 
 
 class ServiceError(ArmdError):
@@ -120,6 +121,7 @@ class ArmClient:
         self.prefix = prefix.rstrip("/")
         self.timeout = timeout
         self.deadline = deadline
+        self._queriers: dict[tuple[str, float], zenoh.Querier] = {}
 
     def __enter__(self) -> ArmClient:
         return self
@@ -136,15 +138,14 @@ class ArmClient:
              deadline: float | None = None) -> dict[str, Any]:
         """One request to ``<prefix>/<key>``: the reply object, or :class:`ServiceError` /
         :class:`NoReply`. ``deadline`` [s]: for this request, instead of the client's."""
-        request = dict(request or {})
         asked = self.deadline if deadline is None else deadline
         if asked is not None:
-            request["deadline"] = asked
-        payload = encode(request)
+            request = {**request, "deadline": asked} if request else {"deadline": asked}  # (the caller's untouched)
+        payload = encode(request) if request else b"{}"
         wait = self.timeout if timeout is None else timeout
+        querier = self._querier(key, wait)
         for _attempt in range(2):  # a replica that died with the query in flight: ask once more
-            for reply in self.session.get(f"{self.prefix}/{key}", payload=payload, encoding=JSON, timeout=wait,
-                                          congestion_control=zenoh.CongestionControl.BLOCK):  # (DROP loses big ones)
+            for reply in querier.get(payload=payload, encoding=JSON):
                 if reply.ok is not None:
                     out: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
                     return out
@@ -157,6 +158,19 @@ class ArmClient:
                     break
                 raise ServiceError(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
         raise NoReply(f"no armd service answered {self.prefix}/{key} within {wait} s")
+
+    def _querier(self, key: str, wait: float) -> zenoh.Querier:
+        """The querier of ``<prefix>/<key>`` with this timeout, declared on first use and kept:
+        a plain ``session.get`` declares one and drops it on every call, and sends the key as
+        text; a kept one sends it as a number the router already knows. Bounded (robot names
+        come from callers): past ``MAX_QUERIERS`` keys, one is declared per call as before."""
+        querier = self._queriers.get((key, wait))
+        if querier is None:
+            querier = self.session.declare_querier(f"{self.prefix}/{key}", timeout=wait,  # BLOCK: DROP loses big ones
+                                                   congestion_control=zenoh.CongestionControl.BLOCK)
+            if len(self._queriers) < MAX_QUERIERS:
+                querier = self._queriers.setdefault((key, wait), querier)  # (two threads at once: one kept)
+        return querier
 
     def robots(self) -> list[dict[str, Any]]:
         return list(self.call("robots")["robots"])
@@ -263,13 +277,18 @@ def _motion(goal: object, path: str, speed: float, rate_hz: float | None, via: S
     return req
 
 
+_PLAIN = frozenset({float, int, str, bool, type(None)})  # JSON as they are
+
+
 def _jsonable(x: object) -> Any:
+    if type(x) in _PLAIN:  # (most of what a request holds: first, and without a look for dataclass fields)
+        return x
     if isinstance(x, np.ndarray):
         return x.tolist()
     if isinstance(x, dict):
         return {k: _jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [v if type(v) in _PLAIN else _jsonable(v) for v in x]
     if hasattr(x, "__dataclass_fields__"):
         return {k: _jsonable(getattr(x, k)) for k in x.__dataclass_fields__}
     return x

@@ -34,6 +34,8 @@ class DeadlineExceeded(ArmdError):
 class Deadline:
     """``arrived`` + ``budget`` [s], on the monotonic clock."""
 
+    __slots__ = ("arrived", "budget")  # one per request
+
     def __init__(self, arrived: float, budget: float) -> None:
         self.arrived = arrived
         self.budget = budget

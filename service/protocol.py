@@ -61,17 +61,19 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
         return {}
     if len(payload) > limits.max_payload_bytes:
         raise PayloadTooLarge(len(payload), limits.max_payload_bytes)
-    try:
-        payload.decode("utf-8")
-    except UnicodeDecodeError:
-        raise BadRequest("the payload is not UTF-8 text (a JSON object is expected)", field="payload") from None
-    try:  # strict JSON: NaN, Infinity and numbers beyond a double (1e999) are refused
-        obj = orjson.loads(payload)
+    try:  # strict JSON: NaN, Infinity and numbers beyond a double (1e999) are refused; so is any byte
+        obj = orjson.loads(payload)  # sequence that is not UTF-8 (orjson checks all of the input)
     except orjson.JSONDecodeError as e:
+        try:  # (only now, on the way out: which of the two it was)
+            payload.decode("utf-8")
+        except UnicodeDecodeError:
+            raise BadRequest("the payload is not UTF-8 text (a JSON object is expected)", field="payload") from None
         raise BadRequest(f"the payload is not valid JSON: {e}", field="payload") from None
     if not isinstance(obj, dict):
         raise BadRequest(f"the request must be a JSON object, got {type(obj).__name__}", field="payload")
-    if _depth(obj, 1) > limits.max_depth:
+    # Every level of nesting opens with a bracket, and a scalar adds one: with fewer brackets
+    # than the limit the request cannot be too deep, and is not walked (one target: two).
+    if payload.count(b"[") + payload.count(b"{") >= limits.max_depth and _depth(obj, 1) > limits.max_depth:
         raise BadRequest(f"the request is nested deeper than {limits.max_depth} levels", field="payload")
     version = obj.get("protocol", PROTOCOL_VERSION)
     if version != PROTOCOL_VERSION or isinstance(version, bool):
@@ -147,9 +149,16 @@ def _finite(obj: Any) -> Any:
 
 def allowed(req: Mapping[str, Any], *names: str) -> None:
     """Refuse keys a verb does not know (a misspelt option must not be silently ignored)."""
-    extra = sorted(set(req) - set(names) - set(ENVELOPE))
-    if extra:
-        raise BadRequest(f"unknown field {extra[0]!r}; this verb takes: {', '.join(names)}", field=extra[0])
+    known = _KNOWN.get(names)
+    if known is None:  # once per verb: the names are the handlers' constants
+        known = _KNOWN[names] = frozenset(names + ENVELOPE)
+    if known.issuperset(req):
+        return
+    extra = sorted(set(req) - known)
+    raise BadRequest(f"unknown field {extra[0]!r}; this verb takes: {', '.join(names)}", field=extra[0])
+
+
+_KNOWN: dict[tuple[str, ...], frozenset[str]] = {}
 
 
 def number(req: Mapping[str, Any], name: str, default: float | None = None) -> float | None:

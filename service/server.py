@@ -14,8 +14,11 @@ One queryable on ``<prefix>/**`` takes every request, so a request for an unknow
 verb gets an error reply too. It is declared ``complete``: with several replicas on one
 network, a query (target ``BEST_MATCHING``, the default) reaches exactly one of them.
 Quick requests (``fk``, ``info``, ``robots``, IK of one target: microseconds to a couple of
-milliseconds) are answered on the Zenoh thread that received them, where a hand-over to a
-worker would cost more than the work (bench/service.py). The rest are served on a thread
+milliseconds) are answered on the thread Zenoh hands them to (zenoh-python's callback thread
+for the queryable), where a hand-over to a worker would cost more than the work
+(bench/service.py); their path is kept short, as it runs once per request on a CPU that the
+router and the clients share: keys are routed with one look-up, counters take one lock, and
+the debug line is formatted only when debug is on. The rest are served on a thread
 pool, ``stop`` on a pool of its own, so that a queue of IK batches and plans cannot delay it
 (measured by bench/load.py); every request gets exactly one reply, an error reply for anything
 that goes wrong, and an unexpected exception is logged with its traceback and answered
@@ -51,6 +54,7 @@ from .state import StateBook
 log = logging.getLogger("armd.service")
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
 JSON = zenoh.Encoding.APPLICATION_JSON
+Route = tuple[Robot | None, str]  # (arm, verb); (None, "robots") for the service-wide verb
 
 
 class Service:
@@ -77,6 +81,13 @@ class Service:
         self._errors = 0
         self._late = 0  # answered ``deadline``
         self._in_flight = 0  # handed to a pool, not yet answered
+        # Every key this service answers, parsed once: a request finds its arm and verb with one
+        # dict look-up. Any other key (a glob, an unknown robot or verb) takes the general path
+        # in _dispatch, which names the error. Bounded: robots x verbs, never grown by requests.
+        self._routes: dict[str, Route] = {f"{self.prefix}/robots": (None, "robots")}
+        for name, arm in self.arms.items():
+            for verb in VERBS:
+                self._routes[f"{self.prefix}/{name}/{verb}"] = (arm, verb)
         self._entities: list[Any] = [
             session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
@@ -100,40 +111,33 @@ class Service:
 
     def _on_query(self, query: zenoh.Query) -> None:
         arrived = time.monotonic()  # the deadline counts from here, queue included
-        key = str(query.key_expr)
+        key_expr = query.key_expr  # (made once: the reply goes on it too)
+        key = str(key_expr)
         payload = query.payload
         body = payload.to_bytes() if payload is not None else b""
-        with self._lock:
-            self._in_flight += 1
-        if self._quick(key, body):  # answered here, on Zenoh's thread: no hand-over to a worker
-            self._serve(query, arrived, key, body)
+        route = self._routes.get(key)
+        if _quick(key, body, route):  # answered here, on this thread: no hand-over to a worker
+            self._serve(query, key_expr, arrived, key, body, route, False)
             return
         pool = self._stops if key.endswith("/stop") and key.count("/") == self.prefix.count("/") + 2 else self._pool
+        with self._lock:
+            self._in_flight += 1
         try:
-            pool.submit(self._serve, query, arrived, key, body)
+            pool.submit(self._serve, query, key_expr, arrived, key, body, route, True)
         except RuntimeError:  # the pool is shut down: the service is closing
             with self._lock:
                 self._in_flight -= 1
             query.drop()
 
-    @staticmethod
-    def _quick(key: str, body: bytes) -> bool:
-        """A request short enough to answer on the thread that received it (microseconds to
-        a couple of milliseconds): fk, info, robots, and IK of one target. Handing it to a
-        worker would cost more than the work; everything else queues for the workers."""
-        verb = key[key.rfind("/") + 1:]
-        if verb in ("fk", "info", "robots"):
-            return True
-        return verb == "ik" and len(body) <= QUICK_BYTES and b'"targets"' not in body
-
-    def _serve(self, query: zenoh.Query, arrived: float, key: str, body: bytes) -> None:
+    def _serve(self, query: zenoh.Query, key_expr: zenoh.KeyExpr, arrived: float, key: str, body: bytes,
+               route: Route | None, pooled: bool) -> None:
         outcome = "error"
         try:
             with query:  # finalises the query when done: one reply, then the end
                 try:
-                    reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline))
+                    reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline), route)
                     # (a reply travels with its query's congestion control: clients ask with BLOCK)
-                    query.reply(query.key_expr, encode(reply), encoding=JSON)
+                    query.reply(key_expr, encode(reply), encoding=JSON)
                     outcome = "ok"
                 except ArmdError as e:
                     query.reply_err(error_reply(e), encoding=JSON)
@@ -145,19 +149,27 @@ class Service:
             log.debug("could not reply to %s", key, exc_info=True)
             outcome = "lost"
         finally:
-            with self._lock:
-                self._in_flight -= 1
+            with self._lock:  # one acquisition per request: the counters move together
+                if pooled:
+                    self._in_flight -= 1
                 if outcome != "lost":
                     self._served += 1
-                    self._errors += outcome != "ok"
-                    self._late += outcome == "late"
-        log.debug("%s %s in %.2f ms", key, outcome, (time.monotonic() - arrived) * 1e3)
+                    if outcome != "ok":
+                        self._errors += 1
+                        if outcome == "late":
+                            self._late += 1
+        if log.isEnabledFor(logging.DEBUG):  # (the level is looked up per request: it may be changed live)
+            log.debug("%s %s in %.2f ms", key, outcome, (time.monotonic() - arrived) * 1e3)
 
-    def _dispatch(self, key: str, payload: bytes, deadline: Deadline) -> dict[str, Any]:
-        rest = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
-        parts = rest.split("/")
-        urgent = len(parts) == 2 and parts[1] == "stop"  # a stop is never refused for lateness
-        if not urgent:
+    def _dispatch(self, key: str, payload: bytes, deadline: Deadline, route: Route | None = None) -> dict[str, Any]:
+        if route is None:  # not a key of ours as it stands: parsed here, and refused once the payload is read
+            rest = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
+            parts = rest.split("/")
+            urgent = len(parts) == 2 and parts[1] == "stop"
+        else:
+            rest, parts = key, []
+            urgent = route[1] == "stop"
+        if not urgent:  # a stop is never refused for lateness
             deadline.check("queued")
         req = decode(payload, self.handlers.limits)
         asked = request_deadline(req)
@@ -165,8 +177,21 @@ class Service:
             deadline.shorten(asked)
             if not urgent:
                 deadline.check("queued")
-        if parts == ["robots"]:
+        if route is None:
+            route = self._route(rest, parts)
+        arm, verb = route
+        if arm is None:
             return self._finish(self.handlers.robots(req, deadline), deadline)
+        handler = getattr(self.handlers, verb)
+        result: dict[str, Any] = handler(arm, req, deadline)
+        if verb in ("move", "stop", "gripper"):  # published: the reply says so, however late
+            return result
+        return self._finish(result, deadline)
+
+    def _route(self, rest: str, parts: list[str]) -> Route:
+        """The arm and verb of a key that is not in the table, or the error that says why not."""
+        if parts == ["robots"]:
+            return None, "robots"
         if len(parts) != 2:
             raise UnknownVerb(rest)
         name, verb = parts
@@ -175,11 +200,7 @@ class Service:
             raise UnknownRobot(name, self.arms)
         if verb not in VERBS:
             raise UnknownVerb(verb)
-        handler = getattr(self.handlers, verb)
-        result: dict[str, Any] = handler(arm, req, deadline)
-        if verb in ("move", "stop", "gripper"):  # published: the reply says so, however late
-            return result
-        return self._finish(result, deadline)
+        return arm, verb
 
     @staticmethod
     def _finish(result: dict[str, Any], deadline: Deadline) -> dict[str, Any]:
@@ -255,6 +276,16 @@ class Service:
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._stops.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
+
+
+def _quick(key: str, body: bytes, route: Route | None) -> bool:
+    """A request short enough to answer on the thread that received it (microseconds to a
+    couple of milliseconds): fk, info, robots, and IK of one target. Handing it to a worker
+    would cost more than the work; everything else queues for the workers."""
+    verb = route[1] if route is not None else key[key.rfind("/") + 1:]
+    if verb in ("fk", "info", "robots"):
+        return True
+    return verb == "ik" and len(body) <= QUICK_BYTES and b'"targets"' not in body
 
 
 def _attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:

@@ -140,6 +140,71 @@ def test_internal_errors_are_answered_and_the_service_lives_on(client: ArmClient
     assert client.fk("gupta3", [0, 1, -1]).within_limits
 
 
+def test_counters_and_the_debug_line(client: ArmClient, service: object, caplog: pytest.LogCaptureFixture) -> None:
+    """Quick requests (answered on the receiving thread) are counted served, errors as errors,
+    never in flight; with the level at debug, each request is logged with its outcome and time."""
+    import logging
+
+    from tests.conftest import wait_for
+
+    before = service.stats()  # type: ignore[attr-defined]
+    with caplog.at_level(logging.DEBUG, logger="armd.service"):
+        assert client.fk("gupta3", [0, 1, -1]).within_limits
+        assert raw(client, "gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "aproach": 1}')[0] == "err"
+        assert raw(client, "*/fk", b'{"q": [0, 1, -1]}')[1]["code"] == "unknown_robot"  # a glob is no robot
+        wait_for(lambda: sum(r.getMessage().startswith("armd/") for r in caplog.records) >= 3, what="three debug lines")
+    after = service.stats()  # type: ignore[attr-defined]
+    assert after["served"] - before["served"] == 3 and after["errors"] - before["errors"] == 2
+    assert after["in_flight"] == 0
+    lines = [r.getMessage() for r in caplog.records if r.name == "armd.service"]
+    assert any(m.startswith("armd/gupta3/fk ok in ") and m.endswith(" ms") for m in lines), lines
+    assert any(m.startswith("armd/gupta3/ik error in ") for m in lines), lines
+
+
+def test_arm_client_keeps_a_querier_per_key(router: str, service: object, monkeypatch: pytest.MonkeyPatch) -> None:
+    import clients.client as module
+
+    with ArmClient(router, timeout=10.0, deadline=5.0) as c:
+        req = {"q": [0, 1, -1]}
+        for _ in range(3):
+            assert c.call("gupta3/fk", req)["within_limits"]
+        assert req == {"q": [0, 1, -1]}  # the client's deadline went into the payload, not into the caller's dict
+        assert list(c._queriers) == [("gupta3/fk", 10.0)]
+        assert c.call("gupta3/fk", req, timeout=7.0)["within_limits"]  # a timeout of its own: a querier of its own
+        assert set(c._queriers) == {("gupta3/fk", 10.0), ("gupta3/fk", 7.0)}
+        monkeypatch.setattr(module, "MAX_QUERIERS", 2)
+        for _ in range(2):  # past the bound: still answered, nothing more kept
+            assert c.ik("insomniac", [0.25, 0.05, 0.12]).status in ("ok", "approximate", "unreachable")
+        assert len(c._queriers) == 2
+        with pytest.raises(ServiceError) as e:  # errors come back the same way through a kept querier
+            c.call("gupta3/fk", {"q": [0, 1]})
+        assert e.value.code == "bad_request" and e.value.field == "q"
+
+
+def test_one_arm_client_shared_by_threads(router: str, service: object) -> None:
+    """Threads asking through one client share its querier: each gets its own reply."""
+    arm = robots.load("sg5ut")
+    targets = [arm.fk(q) for q in random_in_limits(arm, 48, seed=53)]
+    expected = [solvers.solve_ik(arm, t).q for t in targets]
+    failures: list[str] = []
+    with ArmClient(router, timeout=10.0) as c:
+        def worker(k: int) -> None:
+            for i in range(k, len(targets), 8):
+                try:
+                    if not np.allclose(c.ik("sg5ut", targets[i]).q, expected[i], atol=1e-12):
+                        failures.append(f"wrong answer {i}")
+                except Exception as e:
+                    failures.append(repr(e))
+
+        threads = [threading.Thread(target=worker, args=(k,)) for k in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=60)
+        assert list(c._queriers) == [("sg5ut/ik", 10.0)]
+    assert failures == []
+
+
 def test_concurrent_clients(router: str, service: object) -> None:
     arm = robots.load("sg5ut")
     targets = [arm.fk(q) for q in random_in_limits(arm, 40, seed=52)]
