@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -196,11 +196,7 @@ def test_one_arm_client_shared_by_threads(router: str, service: object) -> None:
                 except Exception as e:
                     failures.append(repr(e))
 
-        threads = [threading.Thread(target=worker, args=(k,)) for k in range(8)]
-        for t in threads:
-            t.start()
-        for t in threads:
-            t.join(timeout=60)
+        _in_threads(worker, 8)
         assert list(c._queriers) == [("sg5ut/ik", 10.0)]
     assert failures == []
 
@@ -221,12 +217,17 @@ def test_concurrent_clients(router: str, service: object) -> None:
                 except Exception as e:
                     failures.append(repr(e))
 
-    threads = [threading.Thread(target=worker, args=(k,)) for k in range(8)]
+    _in_threads(worker, 8)
+    assert failures == []
+
+
+def _in_threads(worker: Callable[[int], None], n: int) -> None:
+    """``worker(k)`` for k in 0..n-1, each on its own thread, all at once; waits for them."""
+    threads = [threading.Thread(target=worker, args=(k,)) for k in range(n)]
     for t in threads:
         t.start()
     for t in threads:
         t.join(timeout=60)
-    assert failures == []
 
 
 @pytest.fixture(scope="module")
