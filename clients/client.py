@@ -7,6 +7,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -144,6 +145,7 @@ class ArmClient:
         payload = encode(request) if request else b"{}"
         wait = self.timeout if timeout is None else timeout
         querier = self._querier(key, wait)
+        started = time.monotonic()
         for _attempt in range(2):  # a replica that died with the query in flight: ask once more
             for reply in querier.get(payload=payload, encoding=JSON):
                 if reply.ok is not None:
@@ -157,6 +159,10 @@ class ArmClient:
                 except ValueError:  # Zenoh's own error (a timeout): not a service reply
                     break
                 raise ServiceError(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
+        if time.monotonic() - started < wait / 2:  # ended at once: nothing on the network serves the key
+            raise NoReply(f"no armd service answered {self.prefix}/{key}: nothing on the network serves it "
+                          "(no service for this robot, or an access-control list that refuses it to this user "
+                          "or hides the service's queryable: docs/security.md)")
         raise NoReply(f"no armd service answered {self.prefix}/{key} within {wait} s")
 
     def _querier(self, key: str, wait: float) -> zenoh.Querier:

@@ -61,8 +61,9 @@ def test_only_trusted_users_move_arms(secured: dict[str, Path]) -> None:
         assert guest.ik("gupta3", arm.fk(np.array([0.2, 1.0, -1.1])).tolist()).status == "ok"
         assert [r["name"] for r in guest.robots()] == ["gupta3"]
         # a guest's move is refused: the router drops it, the service never sees it
-        with pytest.raises(NoReply):
+        with pytest.raises(NoReply) as refused:
             guest.move("gupta3", [0.5, 1.2, -1.0])
+        assert "access-control list" in refused.value.message  # refused at once, and said so
         with pytest.raises(NoReply):
             guest.stop("gupta3")
         # and a guest cannot publish a trajectory to the adapter either
