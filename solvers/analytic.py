@@ -9,6 +9,8 @@ nearest them), ``NONE`` (no branch within limits at any pitch: the QP takes over
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -29,6 +31,12 @@ def solve_one(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, 
               x: float, y: float, z: float, prefs: FloatArray,
               qs: FloatArray, ids: IntArray, errs: FloatArray, work: FloatArray) -> tuple[int, int, float]:
     """(code, number of branches in ``qs``/``ids``/``errs``, pitch [rad] used)."""
+    if P[1] == 0.0:  # no lateral pivot offset: the tool stays within reach of the pivot's circle
+        reach = P[3] + P[4] + (P[5] if J[3] >= 0 else 0.0)
+        dh = math.sqrt(x * x + y * y) - abs(P[0] + P[6])
+        dz = z - (P[2] + P[7])
+        if dh * dh + dz * dz > (reach * (1.0 + 1e-9) + 1e-12) ** 2:
+            return NONE, 0, 0.0  # beyond reach: no branch at any pitch (and no pitch search)
     if J[3] < 0:
         m = configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, 0.0, 0.0, qs, ids, work)
         if m == 0:

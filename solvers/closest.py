@@ -28,6 +28,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
+SLACK = 1e-9  # relative (and [m^2] absolute) slack of closest_box's bounds: a skip is never a rounding's doing
 FREE_PREFS = np.array([0.0, -math.pi / 2])  # the free-pitch preference (solvers.ik.FREE_PITCHES)
 ALPHA_STEP = math.pi / 32  # [rad] sampling of the target's bearing in the arm frame (closest_level)
 
@@ -496,9 +497,10 @@ def closest_level(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 @jit
 def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
                 clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool, target: FloatArray,
-                ref: FloatArray, q_out: FloatArray) -> float:
+                ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
     """The closest configuration within the box limits, any tool pitch, by enumerating every
-    stationary point: (error [m]), or -1 where this does not apply.
+    stationary point: (error [m]), or -1 where this does not apply. ``prune`` False visits every
+    candidate (the tests hold the pruned search to it).
 
     With no lateral pivot offset, the best yaw for a given arm pose is the yaw within limits
     nearest the target's bearing (tool in front of the axis) or its opposite (behind), so the
@@ -558,7 +560,24 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     work = np.empty((4, 5))
     options = 4 ** nj
     reach = l1 + l2 + (l3 if nj == 3 else 0.0)
+    # A lower bound on the error at each yaw: the target's distance from the arm's plane, and
+    # its distance in the plane from the shoulder pivot less the whole reach. A yaw (and, below,
+    # a face) that cannot beat the best candidate so far is skipped; a candidate that meets its
+    # yaw's bound ends that yaw's search (the stretched arm aimed at a target beyond reach).
+    # SLACK keeps every skip on the safe side of rounding; a stop allows 1e-12 relative.
+    bounds = np.empty(2)
     for yi in range(n_yaws):
+        psi = yaws[yi]
+        tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0
+        lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
+        beyond = max(math.sqrt((tu - cu) ** 2 + (z - cz) ** 2) - reach, 0.0)
+        bounds[yi] = lateral * lateral + beyond * beyond
+    if prune and n_yaws == 2 and bounds[1] < bounds[0]:  # the more promising yaw first
+        yaws[0], yaws[1] = yaws[1], yaws[0]
+        bounds[0], bounds[1] = bounds[1], bounds[0]
+    for yi in range(n_yaws):
+        if prune and bounds[yi] > best * (1.0 + SLACK) + SLACK:
+            continue  # nothing at this yaw is nearer than the best so far
         psi = yaws[yi]
         tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0  # the target projected on the arm's plane
         lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
@@ -575,6 +594,8 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
             if code != NONE:
                 continue  # nothing at this yaw is nearer than the projection itself
         for code in range(options):
+            if prune and best <= bounds[yi] * (1.0 + 1e-12) + 1e-24:
+                break  # the best so far meets this yaw's bound: no face here does better
             # joint k: option 0/1 free (pointing along the line / back), 2 at its lower, 3 at its upper bound
             c = code
             for k in range(nj):
@@ -598,6 +619,13 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
                 du, dz = tu - ou, z - oz_
                 if du * du + dz * dz < 1e-24:
                     return -1.0
+                if prune and first > 0:  # the joints before the first free one are fixed: the rest reach so far
+                    rest = 0.0
+                    for k in range(first, nj):
+                        rest += links[k]
+                    short = max(math.sqrt(du * du + dz * dz) - rest, 0.0)
+                    if short * short + lateral * lateral > best * (1.0 + SLACK) + SLACK:
+                        continue
                 alpha = math.atan2(dz, du)
                 feasible = True
                 prev = phi  # absolute angle of the link before joint `first`
@@ -659,7 +687,7 @@ def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatAr
     the ``n_atlas`` atlas configurations whose tool points are nearest the target:
     (error, pitch error, iterations)."""
     if w2 == 0.0:
-        err = closest_box(P, J, lower, upper, C, clo, chi, weights, exact_pitch_search, target, ref, q_out)
+        err = closest_box(P, J, lower, upper, C, clo, chi, weights, exact_pitch_search, target, ref, q_out, True)
         if err >= 0.0:
             return err, 0.0, 0
     n = ref.shape[0]

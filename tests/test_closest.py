@@ -63,7 +63,7 @@ def _enumerated(P: np.ndarray, J: np.ndarray, lower: np.ndarray, upper: np.ndarr
                 clo: np.ndarray, chi: np.ndarray, target: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
     a = _arm(ARM)
     q = np.empty(len(ref))
-    err = closest_box(P, J, lower, upper, C, clo, chi, a.weights, False, target, ref, q)
+    err = closest_box(P, J, lower, upper, C, clo, chi, a.weights, False, target, ref, q, True)
     return err, q
 
 
@@ -215,4 +215,38 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
     P[1] = 0.01
     q = np.empty(len(wrist.lower))
     assert closest_box(P, wrist.fp.J, wrist.lower, wrist.upper, wrist.C, wrist.clo, wrist.chi, wrist.weights,
-                       wrist.exact_pitch_search, t, wrist.robot.neutral, q) == -1.0
+                       wrist.exact_pitch_search, t, wrist.robot.neutral, q, True) == -1.0
+
+
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3"])
+def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
+    """closest_box skips a yaw or a face whose lower bound cannot beat the best so far, and
+    stops a yaw at a candidate that meets its bound (the stretched arm): on 1,500 unreachable
+    targets of every kind, the pruned search's error is the full search's (visiting every
+    candidate), its answer within limits and where it says. A bound that is not one (a slack of
+    the wrong sign, a reach too short) makes it answer worse somewhere here."""
+    arm = robots.load(name)
+    a = _arm(arm)
+    fp = a.fp
+    assert fp is not None
+    rng = np.random.default_rng(47)
+    reach = _reach(arm)
+    done = stopped_early = 0
+    while done < 1500:
+        t = _candidate(KINDS[done % len(KINDS)], reach, rng)
+        if solve_ik(arm, t).status != "unreachable":
+            continue
+        ref = arm.neutral if done % 2 else rng.uniform(a.lower, a.upper)
+        q_full, q_pruned = np.empty(arm.nq), np.empty(arm.nq)
+        full = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref,
+                           q_full, False)
+        pruned = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t,
+                             ref, q_pruned, True)
+        assert (full < 0) == (pruned < 0), t.tolist()
+        if full >= 0:
+            assert abs(pruned - full) <= 1e-12 * max(full, 1.0), (t.tolist(), full, pruned)
+            assert arm.limits.contains(q_pruned, tol=0.0)
+            assert math.isclose(pruned, float(np.linalg.norm(arm.fk(q_pruned) - t)), rel_tol=1e-12, abs_tol=1e-15)
+            stopped_early += not np.array_equal(q_full, q_pruned)
+        done += 1
+    assert done == 1500

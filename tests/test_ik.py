@@ -173,7 +173,7 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
             continue  # (the enumeration is asked only when no configuration reaches the target)
         q = np.empty(arm.nq)
         err = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, target,
-                          arm.neutral, q)
+                          arm.neutral, q, True)
         assert err >= 0.0, target.tolist()
         used += 1
         assert arm.limits.contains(q, tol=0.0)
