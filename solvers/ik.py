@@ -45,6 +45,8 @@ from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
+# solve_point's per-arm arguments (P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, level)
+_Head = tuple[FloatArray, IntArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, bool, bool]
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
@@ -63,6 +65,7 @@ class _Buffers(threading.local):
         self.errs = np.empty(4)
         self.work = np.empty((4, 5))
         self.reached = np.empty(3)
+        self.tail = (self.qs, self.ids, self.errs, self.work, self.reached)  # solve_point's outputs
 
 
 @dataclass
@@ -84,6 +87,12 @@ class _Arm:
     atlas_q: FloatArray  # in-limit configurations spread over joint space (closest-point starts) [rad]
     atlas_p: FloatArray  # their tool points [m]
     buffers: _Buffers
+    head: _Head | None = None  # solve_point's per-arm arguments, in order (made once)
+
+    def __post_init__(self) -> None:
+        if self.fp is not None:
+            self.head = (self.fp.P, self.fp.J, self.lower, self.upper, self.weights, self.C, self.clo, self.chi,
+                         self.exact_pitch_search, self.level)
 
 
 _cache: dict[int, _Arm] = {}
@@ -150,7 +159,9 @@ def solve_ik(
     ref = robot.neutral if seed is None else robot.joint_vector(seed, "seed")
     point = target_point(robot, target, ref)
     pitch = approach_pitch(robot, approach)
-    if isinstance(tolerance, bool) or not (
+    if type(tolerance) is float and 0.0 < tolerance <= MAX_TOLERANCE:
+        pass  # the common case (NaN fails the comparison and takes the full check)
+    elif isinstance(tolerance, bool) or not (
         isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
     ):
         raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
@@ -223,9 +234,8 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
     assert fp is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
-    code, m, phi, pitch_sum = solve_point(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi,
-                                          arm.exact_pitch_search, arm.level, ref, point, prefs, b.qs, b.ids, b.errs,
-                                          b.work, b.reached)
+    assert arm.head is not None
+    code, m, phi, pitch_sum = solve_point(*arm.head, ref, point, prefs, *b.tail)
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0)
     if code == EXACT or pitch is None:
@@ -241,11 +251,11 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
         # the formula is the URDF's FK (checked against Pinocchio when the arm was first seen), so
         # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage
         reached_pitch = math.remainder(pitch_sum, TWO_PI)
-        return IKResult(
-            status=status, q=qs[0], position_error=errs[0], reached=b.reached.copy(), target=point,
-            pitch=reached_pitch, pitch_error=None if pitch is None else math.remainder(reached_pitch - pitch, TWO_PI),
-            branch=names[0], branches=tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]),
-            iterations=0, reason=None if status == OK else reason)
+        others = tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
+        return IKResult(  # (positional: the fields' order, status to reason)
+            status, qs[0], errs[0], b.reached.copy(), point, reached_pitch,
+            None if pitch is None else math.remainder(reached_pitch - pitch, TWO_PI),
+            names[0], others, 0, None if status == OK else reason)
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and refined by the QP where it misses
     rows = [(names[r], qs[r], errs[r]) for r in range(m)]
