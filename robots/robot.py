@@ -24,6 +24,7 @@ from .limits import JointLimits
 from .sensors import RangeSensor
 
 FloatArray = NDArray[np.float64]
+_FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check (not another byte order)
 
 
 @dataclass(frozen=True)
@@ -95,9 +96,10 @@ class Robot:
 
     def joint_vector(self, q: object, field: str = "q") -> FloatArray:
         """``q`` as a float array of this arm's length, all finite; else :class:`BadRequest`."""
-        if type(q) is np.ndarray and q.shape == (self.nq,) and q.dtype == np.float64 and q.flags.c_contiguous \
-                and q.flags.writeable and math.isfinite(sum(q.tolist())):
-            return q  # the common case: already a finite vector of the right length
+        if type(q) is np.ndarray and q.dtype is _FLOAT64 and q.shape == (self.nq,):
+            flags = q.flags
+            if flags.c_contiguous and flags.writeable and math.isfinite(sum(q.tolist())):
+                return q  # the common case: already a finite vector of the right length
         try:
             # a contiguous, writable copy: compiled code sees one array type (a view of a broadcast
             # array is read-only, another type, and would be compiled anew, for seconds)

@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from robots import BadRequest, Robot
 
-from .analytic import EXACT, NONE, solve_point
+from .analytic import EXACT, NONE, pack, packed_outputs, solve_packed
 from .closest import closest_family
 from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches, family_fk
 from .qp import QPRefiner
@@ -45,8 +45,7 @@ from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
-# solve_point's per-arm arguments (P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, level)
-_Head = tuple[FloatArray, IntArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, bool, bool]
+_Head = tuple[FloatArray, IntArray]  # solve_packed's per-arm arguments (solvers.analytic.pack)
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
@@ -60,12 +59,10 @@ class _Buffers(threading.local):
     """Scratch arrays for the compiled stage, one set per thread."""
 
     def __init__(self, n: int) -> None:
-        self.qs = np.empty((4, n))
+        self.out, self.qs, self.errs, self.reached = packed_outputs(n)  # one buffer and its views
         self.ids = np.empty(4, dtype=np.int64)
-        self.errs = np.empty(4)
         self.work = np.empty((4, 5))
-        self.reached = np.empty(3)
-        self.tail = (self.qs, self.ids, self.errs, self.work, self.reached)  # solve_point's outputs
+        self.tail = (self.out, self.ids, self.work)  # solve_packed's outputs
 
 
 @dataclass
@@ -87,12 +84,12 @@ class _Arm:
     atlas_q: FloatArray  # in-limit configurations spread over joint space (closest-point starts) [rad]
     atlas_p: FloatArray  # their tool points [m]
     buffers: _Buffers
-    head: _Head | None = None  # solve_point's per-arm arguments, in order (made once)
+    head: _Head | None = None  # solve_packed's per-arm arguments (made once)
 
     def __post_init__(self) -> None:
         if self.fp is not None:
-            self.head = (self.fp.P, self.fp.J, self.lower, self.upper, self.weights, self.C, self.clo, self.chi,
-                         self.exact_pitch_search, self.level)
+            self.head = pack(self.fp.P, self.fp.J, self.lower, self.upper, self.weights, self.C, self.clo, self.chi,
+                             self.exact_pitch_search, self.level)
 
 
 _cache: dict[int, _Arm] = {}
@@ -235,7 +232,9 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     assert arm.head is not None
-    code, m, phi, pitch_sum = solve_point(*arm.head, ref, point, prefs, *b.tail)
+    K, JI = arm.head
+    out, ids, work = b.tail
+    code, m, phi, pitch_sum = solve_packed(K, JI, ref, point, prefs, out, ids, work)
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0)
     if code == EXACT or pitch is None:
@@ -244,9 +243,9 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
         status = APPROXIMATE
         reason = (f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
                   f"the nearest reachable pitch is {phi:.4f} rad")
-    qs = b.qs[:m].copy()
-    names = [BRANCH_NAMES[i] for i in b.ids[:m].tolist()]
-    errs = b.errs[:m].tolist()
+    qs = b.qs.copy()  # (all four rows: cheaper than slicing first; rows m and on are never read)
+    names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
+    errs = b.errs.tolist()[:m]
     if arm.exact and errs[0] <= tolerance:
         # the formula is the URDF's FK (checked against Pinocchio when the arm was first seen), so
         # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 from robots import BadRequest, Robot
 
 FloatArray = NDArray[np.float64]
+_FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check
 
 PARALLEL = 0.0
 PERPENDICULAR = -math.pi / 2
@@ -41,7 +42,7 @@ def target_point(robot: Robot, target: object, q: FloatArray | None = None) -> F
 
     ``q`` is needed only for a sensor mounted on the arm (it looks along an arm frame).
     """
-    if type(target) is np.ndarray and target.shape == (3,) and target.dtype == np.float64:
+    if type(target) is np.ndarray and target.dtype is _FLOAT64 and target.shape == (3,):
         x, y, z = target.tolist()
         if math.isfinite(x) and math.isfinite(y) and math.isfinite(z):
             return target.copy()  # the common case from Python: nothing to convert or check again
