@@ -30,7 +30,6 @@ import argparse
 import json
 import os
 import random
-import socket
 import subprocess
 import sys
 import threading
@@ -42,6 +41,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from service.zconfig import free_endpoint  # noqa: E402
 
 TIMEOUT = 15.0  # [s] a client's wait for one reply; the service's deadline (4 s) comes first
 STOP_ARM = "insomniac"
@@ -366,9 +367,7 @@ def main() -> None:
     service = None
     endpoint = args.endpoint
     if endpoint is None:
-        with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+        endpoint = free_endpoint()
         service = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint, "--sim",
                                     *args.serve_args.split()], cwd=ROOT, stdout=subprocess.PIPE, text=True)
         assert service.stdout is not None

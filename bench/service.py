@@ -32,7 +32,6 @@ import argparse
 import contextlib
 import json
 import multiprocessing as mp
-import socket
 import subprocess
 import sys
 import time
@@ -44,11 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from service.zconfig import free_port  # noqa: E402
 
 
 def targets(n: int, seed: int = 0) -> list[list[float]]:

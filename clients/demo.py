@@ -177,7 +177,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     import zenoh
 
     from service.server import Service
-    from service.zconfig import network_config
+    from service.zconfig import free_endpoint, network_config
 
     from .sim import SimAdapter
 
@@ -188,11 +188,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             raise robots.UnknownRobot(name, arms)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        endpoint = f"tcp/127.0.0.1:{s.getsockname()[1]}"
+    endpoint = free_endpoint()
     started = time.perf_counter()
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(network_config(listen=[endpoint]))

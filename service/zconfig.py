@@ -7,6 +7,7 @@ endpoints are explicit), and so is gossip. So is shared memory (see :func:`_quie
 from __future__ import annotations
 
 import json
+import socket
 from pathlib import Path
 
 import zenoh
@@ -14,6 +15,19 @@ import zenoh
 from robots import BadRequest
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now (the OS's pick), for a router of
+    one's own: the demo, the benchmarks and the tests."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def free_endpoint() -> str:
+    """``tcp/127.0.0.1:<a free port>`` (:func:`free_port`)."""
+    return f"tcp/127.0.0.1:{free_port()}"
 
 
 def _quiet(conf: zenoh.Config) -> zenoh.Config:

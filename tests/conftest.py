@@ -32,16 +32,11 @@ def arm_copy(tmp_path: Path) -> Callable[..., Path]:
 
 # -- Zenoh: a real router on 127.0.0.1, opened in-process ---------------------------------------
 
-import socket  # noqa: E402
 from collections.abc import Iterator  # noqa: E402
 
 import zenoh  # noqa: E402
 
-
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from service.zconfig import free_port  # noqa: E402 (the tests import it from here too)
 
 
 @pytest.fixture(scope="module")
