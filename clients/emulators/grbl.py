@@ -69,11 +69,11 @@ import re
 import select
 import threading
 import time
-import tty
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import TracebackType
+
+from .pty import PtyEmulator
 
 VERSION = "1.1h"
 WELCOME = f"\r\nGrbl {VERSION} ['$' for help]\r\n"
@@ -130,14 +130,18 @@ class _Modal:
     tool: int = 0
 
 
-class GrblEmulator:
+class GrblEmulator(PtyEmulator):
     """A GRBL 1.1 controller on a pseudo-terminal: ``start()`` it, open ``port`` with pyserial."""
+
+    name = "grbl-emulator"
+    keep_slave = False  # a client's open shows as the hang-up clearing: the Arduino resets then
 
     def __init__(self, *, axes: str = "XYZ", rx_buffer: int = 128, planner_blocks: int = 15,
                  time_scale: float = 1.0, clock: Callable[[], float] = time.monotonic) -> None:
         """``axes``: the axis letters (from XYZABC), in report order; ``rx_buffer`` [bytes] and
         ``planner_blocks``: GRBL's buffer sizes; ``time_scale``: machine seconds per clock second
         (10 runs motion and dwells 10 times as fast); ``clock`` [s]: drives motion and dwells."""
+        super().__init__()
         axes = axes.upper()
         if not axes or len(set(axes)) != len(axes) or any(a not in AXIS_LETTERS for a in axes):
             raise ValueError(f"axes must be distinct letters of {AXIS_LETTERS}, not {axes!r}")
@@ -156,55 +160,12 @@ class GrblEmulator:
         self.max_rx_used = 0  # [bytes] the most ever waiting in the receive buffer
         self.responding = True  # False: read and drop everything, answer nothing
         self._lock = threading.RLock()
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
-        self._master = -1
-        self._port = ""
         self._tx = bytearray()
         self._inject_error: int | None = None
         self._power_up()
         self._boot_until: float | None = None  # [wall s] the welcome is due then; input is lost till then
 
     # -- the public side -----------------------------------------------------------------------
-
-    def start(self) -> str:
-        """Open the pseudo-terminal and serve it from a thread; return the port's path."""
-        if self._thread is not None:
-            return self._port
-        self._master, slave = os.openpty()
-        tty.setraw(slave)  # no echo or line editing before a client sets its own modes
-        self._port = os.ttyname(slave)
-        os.close(slave)  # a client's open and close then show as the master's hang-up clearing and setting
-        os.set_blocking(self._master, False)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._serve, name=f"grbl-emulator {self._port}", daemon=True)
-        self._thread.start()
-        return self._port
-
-    def stop(self) -> None:
-        """Stop serving and close the pseudo-terminal."""
-        if self._thread is None:
-            return
-        self._stop.set()
-        self._thread.join()
-        self._thread = None
-        os.close(self._master)
-        self._master = -1
-
-    def __enter__(self) -> GrblEmulator:
-        self.start()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> str:
-        """The path to open, like ``/dev/pts/3``."""
-        if not self._port:
-            raise RuntimeError("the emulator is not started")
-        return self._port
 
     def position(self) -> dict[str, float]:
         """The machine position now, per axis [units]: ``steps() / $10x``."""

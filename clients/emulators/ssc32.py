@@ -45,10 +45,10 @@ import re
 import select
 import threading
 import time
-import tty
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from types import TracebackType
+
+from .pty import PtyEmulator
 
 PULSE_MIN = 500  # [us], the manual's range
 PULSE_MAX = 2500  # [us]
@@ -90,10 +90,14 @@ class _Servo:
         return self.start + (self.target - self.start) * (now - self.t0) / (self.t1 - self.t0)
 
 
-class SSC32Emulator:
+class SSC32Emulator(PtyEmulator):
     """An SSC-32 on a pseudo-terminal; ``start()`` (or ``with``) returns the path to open with pyserial."""
 
+    name = "ssc32-emulator"
+    keep_slave = True  # the board does not reset when its port is opened
+
     def __init__(self, *, version: str = "SSC32-V2.50USB", clock: Callable[[], float] = time.monotonic) -> None:
+        super().__init__()
         self.version = version
         self.clock = clock  # [s]
         self.history: list[GroupMove] = []
@@ -103,52 +107,6 @@ class SSC32Emulator:
         self._servos: dict[int, _Servo] = {}
         self._busy_until = -math.inf  # [s] end of the latest move, for Q
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        self._master: int | None = None
-        self._slave: int | None = None
-        self._port: str | None = None
-
-    # -- lifecycle ---------------------------------------------------------------------------
-
-    def start(self) -> str:
-        """Open the pseudo-terminal and start serving it; return the path to open (like /dev/ttyUSB0)."""
-        if self._thread is not None:
-            raise RuntimeError("SSC32Emulator already started")
-        master, slave = os.openpty()
-        tty.setraw(slave)  # no echo, no CR/LF translation, whatever the opener does
-        os.set_blocking(master, False)  # a reply nobody reads never blocks the thread
-        self._master, self._slave, self._port = master, slave, os.ttyname(slave)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._serve, name=f"ssc32-emulator {self._port}", daemon=True)
-        self._thread.start()
-        return self._port
-
-    def stop(self) -> None:
-        """Stop the thread and close the pseudo-terminal. Idempotent."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        for fd in (self._master, self._slave):
-            if fd is not None:
-                os.close(fd)
-        self._master = self._slave = None
-
-    def __enter__(self) -> SSC32Emulator:
-        self.start()
-        return self
-
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
-        self.stop()
-
-    @property
-    def port(self) -> str:
-        """The pseudo-terminal's path, for ``serial.Serial(port, 115200)``."""
-        if self._port is None:
-            raise RuntimeError("SSC32Emulator not started")
-        return self._port
 
     # -- state, for tests --------------------------------------------------------------------
 
@@ -178,7 +136,6 @@ class SSC32Emulator:
     # -- protocol ----------------------------------------------------------------------------
 
     def _serve(self) -> None:
-        assert self._master is not None
         master, line = self._master, bytearray()
         while not self._stop.is_set():
             if not select.select([master], [], [], 0.05)[0]:
@@ -201,7 +158,7 @@ class SSC32Emulator:
                     line.append(byte)
 
     def _reply(self, data: bytes) -> None:
-        if data and self._master is not None:
+        if data and self._master >= 0:
             with contextlib.suppress(BlockingIOError):  # the opener's input buffer is full: lost, as on a UART
                 os.write(self._master, data)
 
