@@ -22,14 +22,14 @@ import threading
 import time
 import uuid
 from abc import ABC, abstractmethod
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import serial
 import zenoh
 
 from planning import JointState
-from robots import ArmdError, Robot
+from robots import ArmdError, BadRequest, Robot
 from service.protocol import encode
 
 from .trajectory_message import Command, parse
@@ -50,6 +50,20 @@ def open_port(port: str, baud: int, timeout: float, write_timeout: float) -> ser
         return serial.serial_for_url(port, baudrate=baud, timeout=timeout, write_timeout=write_timeout)
     except (serial.SerialException, ValueError) as e:
         raise ControllerFault(f"cannot open {port}: {e}") from None
+
+
+A = TypeVar("A")
+
+
+def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
+    """``robot``'s actuators, every one a ``kind`` (what ``adapter`` drives), else :class:`BadRequest`."""
+    acts = robot.actuators.actuators
+    drives: list[A] = [a for a in acts if isinstance(a, kind)]
+    if len(drives) != len(acts):
+        what = kind.__name__.lower() + "s"
+        raise BadRequest(f"{robot.name}'s actuators are not all {what}: the {adapter} adapter drives {what}",
+                         field="robot")
+    return drives
 
 
 class Adapter(ABC):
@@ -248,3 +262,15 @@ class Adapter(ABC):
             except Exception:
                 log.debug("undeclare failed", exc_info=True)
         self.shutdown()
+
+
+class SerialAdapter(Adapter):
+    """An adapter whose controller is on a serial port (or a pyserial URL): the port, opened
+    (:func:`open_port`), and the lock its users share (the control loop, gripper requests)."""
+
+    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int, timeout: float,
+                 write_timeout: float, prefix: str = "armd", state_hz: float = 50.0, check_period: float = 0.5) -> None:
+        self.port = port
+        self._io = threading.Lock()
+        self.serial = open_port(port, baud, timeout, write_timeout)
+        super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)

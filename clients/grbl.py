@@ -27,7 +27,6 @@ import collections
 import logging
 import math
 import re
-import threading
 import time
 
 import numpy as np
@@ -37,7 +36,7 @@ import zenoh
 from planning import JointState
 from robots import BadRequest, Robot, Stepper
 
-from .adapter import Adapter, ControllerFault, open_port
+from .adapter import ControllerFault, SerialAdapter, actuators_of
 from .trajectory_message import Command
 
 log = logging.getLogger("armd.grbl")
@@ -47,25 +46,19 @@ AXES = "XYZABC"
 _STATUS = re.compile(r"<([A-Za-z]+(?::\d)?)\|MPos:([-\d.,]+)")  # state with its sub-state: Hold:0
 
 
-class GrblAdapter(Adapter):
+class GrblAdapter(SerialAdapter):
     kind = "grbl"
 
     def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int = 115200,
                  prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, check_period: float = 0.5,
                  margin: float = 1.25) -> None:
-        acts = robot.actuators.actuators
-        if not all(isinstance(a, Stepper) for a in acts):
-            raise BadRequest(f"{robot.name}'s actuators are not all steppers: the GRBL adapter drives steppers",
-                             field="robot")
-        self.steppers: list[Stepper] = [a for a in acts if isinstance(a, Stepper)]
+        self.steppers = actuators_of(robot, Stepper, "GRBL")
         self.axes = [a.axis for a in self.steppers]
         if any(ax not in AXES for ax in self.axes):
             raise BadRequest(f"GRBL axes are {', '.join(AXES)}; {robot.name} uses {', '.join(self.axes)}", field="axis")
-        self.port = port
-        self.timeout = timeout
-        self._io = threading.Lock()
-        self.serial = open_port(port, baud, 0.02, timeout)
-        super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)
+        self.timeout = timeout  # [s] how long the controller may take to answer (the port's reads poll)
+        super().__init__(session, robot, port, baud=baud, timeout=0.02, write_timeout=timeout, prefix=prefix,
+                         state_hz=state_hz, check_period=check_period)
         self._buffer = b""
         self._trouble: str | None = None
         self._pending: collections.deque[int] = collections.deque()  # lengths of unacknowledged lines

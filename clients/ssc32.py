@@ -20,7 +20,6 @@ reports is true from then on.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 
 import numpy as np
@@ -30,27 +29,21 @@ import zenoh
 from planning import JointState
 from robots import BadRequest, Robot, Servo
 
-from .adapter import Adapter, ControllerFault, open_port
+from .adapter import ControllerFault, SerialAdapter, actuators_of
 from .trajectory_message import Command
 
 log = logging.getLogger("armd.ssc32")
 
 
-class SSC32Adapter(Adapter):
+class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
 
     def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int = 115200,
                  prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.25, home_time: float = 2.0,
                  check_period: float = 0.5) -> None:
-        acts = robot.actuators.actuators
-        if not all(isinstance(a, Servo) for a in acts):
-            raise BadRequest(f"{robot.name}'s actuators are not all servos: the SSC-32 adapter drives servos",
-                             field="robot")
-        self.channels = [a.channel for a in acts if isinstance(a, Servo)]
-        self.port = port
-        self._io = threading.Lock()  # the control loop and gripper requests share the port
-        self.serial = open_port(port, baud, timeout, timeout)
-        super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)
+        self.channels = [a.channel for a in actuators_of(robot, Servo, "SSC-32")]
+        super().__init__(session, robot, port, baud=baud, timeout=timeout, write_timeout=timeout, prefix=prefix,
+                         state_hz=state_hz, check_period=check_period)
         self.version = self._ask(b"VER\r", until=b"\r").decode(errors="replace").strip()
         if not self.version:
             self.serial.close()

@@ -157,3 +157,17 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, ser
             wait_for(lambda: emu.target(5) == 2000, timeout=5, what="the gripper channel")
         finally:
             adapter.close()
+
+
+def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Session) -> None:
+    """Servo arms to the GRBL adapter, stepper arms to the SSC-32's: refused before any port
+    is opened, naming what the adapter drives."""
+    from clients.grbl import GrblAdapter
+    from robots import BadRequest
+
+    with pytest.raises(BadRequest) as e:
+        SSC32Adapter(adapter_session, robots.load("gupta3"), "/dev/nonexistent-ssc32")
+    assert e.value.field == "robot" and "not all servos: the SSC-32 adapter drives servos" in e.value.message
+    with pytest.raises(BadRequest) as e:
+        GrblAdapter(adapter_session, robots.load("insomniac"), "/dev/nonexistent-grbl")
+    assert e.value.field == "robot" and "not all steppers: the GRBL adapter drives steppers" in e.value.message
