@@ -566,21 +566,23 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     # yaw's bound ends that yaw's search (the stretched arm aimed at a target beyond reach).
     # SLACK keeps every skip on the safe side of rounding; a stop allows 1e-12 relative.
     bounds = np.empty(2)
+    tus = np.zeros(2)  # the target projected on the arm's plane at each yaw
+    laterals = np.zeros(2)  # and its distance from that plane
     for yi in range(n_yaws):
-        psi = yaws[yi]
-        tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0
-        lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
-        beyond = max(math.sqrt((tu - cu) ** 2 + (z - cz) ** 2) - reach, 0.0)
-        bounds[yi] = lateral * lateral + beyond * beyond
+        if h > 0.0:
+            tus[yi] = h * math.cos(bearing - yaws[yi])
+            laterals[yi] = h * abs(math.sin(bearing - yaws[yi]))
+        beyond = max(math.sqrt((tus[yi] - cu) ** 2 + (z - cz) ** 2) - reach, 0.0)
+        bounds[yi] = laterals[yi] * laterals[yi] + beyond * beyond
     if prune and n_yaws == 2 and bounds[1] < bounds[0]:  # the more promising yaw first
-        yaws[0], yaws[1] = yaws[1], yaws[0]
-        bounds[0], bounds[1] = bounds[1], bounds[0]
+        yaws[::-1] = yaws.copy()
+        bounds[::-1] = bounds.copy()
+        tus[::-1] = tus.copy()
+        laterals[::-1] = laterals.copy()
     for yi in range(n_yaws):
         if prune and bounds[yi] > best * (1.0 + SLACK) + SLACK:
             continue  # nothing at this yaw is nearer than the best so far
-        psi = yaws[yi]
-        tu = h * math.cos(bearing - psi) if h > 0.0 else 0.0  # the target projected on the arm's plane
-        lateral = h * abs(math.sin(bearing - psi)) if h > 0.0 else 0.0
+        psi, tu, lateral = yaws[yi], tus[yi], laterals[yi]
         if lateral > 1e-12 and (tu - cu) ** 2 + (z - cz) ** 2 <= reach * reach:
             # the yaw is held at a limit and the target's projection on the arm's plane may be
             # reached exactly (a case the collinearity does not cover): ask the closed form

@@ -10,13 +10,14 @@ from __future__ import annotations
 import os
 import threading
 import tty
+from abc import ABC, abstractmethod
 from types import TracebackType
 from typing import TypeVar
 
 E = TypeVar("E", bound="PtyEmulator")
 
 
-class PtyEmulator:
+class PtyEmulator(ABC):
     """A controller on a pseudo-terminal: ``start()`` (or ``with``) it, open ``port``.
 
     Class attributes for subclasses: ``name`` (the thread's name), and ``keep_slave``: hold the
@@ -79,6 +80,6 @@ class PtyEmulator:
             raise RuntimeError(f"the {type(self).__name__} is not started")
         return self._port
 
+    @abstractmethod
     def _serve(self) -> None:
-        """The thread: the controller itself (subclasses)."""
-        raise NotImplementedError
+        """The thread: the controller itself, reading and answering ``_master`` until ``_stop`` is set."""
