@@ -88,13 +88,21 @@ class Service:
         for name, arm in self.arms.items():
             for verb in VERBS:
                 self._routes[f"{self.prefix}/{name}/{verb}"] = (arm, verb)
+        # Warm up before declaring anything: a request that arrived during the warm-up would wait
+        # behind the compiler (a minute on a cold cache) and time out, and with replicas this one
+        # would take queries another could answer. Until it is declared, clients are told at once
+        # that nothing serves the key, and other replicas answer.
+        started = time.monotonic()
+        log.info("armd service %s warming up %s (compiling on a first start: about a minute)", self.id,
+                 ", ".join(self.arms))
+        self._warm_up()
+        log.info("warmed up in %.1f s", time.monotonic() - started)
         self._entities: list[Any] = [
             session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
             session.liveliness().declare_subscriber(f"{self.prefix}/*/adapter/*", self._on_adapter, history=True),
             session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
         ]
-        self._warm_up()
         log.info("armd service %s serving %s under %s/", self.id, ", ".join(self.arms), self.prefix)
 
     def _warm_up(self) -> None:
