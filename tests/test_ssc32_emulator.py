@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+import math
+import random
 import signal
 import subprocess
 import sys
@@ -55,8 +58,8 @@ def ser(emu: SSC32Emulator) -> Iterator[serial.Serial]:
 
 @pytest.fixture
 def fake() -> Iterator[tuple[SSC32Emulator, serial.Serial, FakeClock]]:
-    clock = FakeClock()
-    with SSC32Emulator(clock=clock) as e, serial.Serial(e.port, 115200, timeout=1) as s:
+    clock = FakeClock()  # frozen: an ideal link and an instant board, or nothing would ever arrive
+    with SSC32Emulator(clock=clock, baud=None, query_delay=0.0) as e, serial.Serial(e.port, 115200, timeout=1) as s:
         yield e, s, clock
 
 
@@ -185,7 +188,7 @@ def test_p0_turns_the_pulses_off(emu: SSC32Emulator, ser: serial.Serial) -> None
 
 def test_line_endings_spaces_and_case(emu: SSC32Emulator, ser: serial.Serial) -> None:
     send(ser, emu, b"#0 p1500 #1 P1600 s500 t100\r\n")
-    send(ser, emu, b"#2P1700\n")
+    send(ser, emu, b"\n#2P17\n00\r")  # line feeds are ignored, wherever they are
     send(ser, emu, b"#3P1800\t\r")
     assert [m.pulses for m in emu.history] == [{0: 1500, 1: 1600}, {2: 1700}, {3: 1800}]
     assert emu.history[0].speeds == {1: 500} and emu.history[0].duration_ms == 100
@@ -282,3 +285,180 @@ def test_run_as_a_program_until_ctrl_c() -> None:
         watchdog.cancel()
         proc.kill()
         proc.wait()
+
+
+# -- the link, the board's timing, power and the output trace -------------------------------------------------------
+
+
+def byte_time(baud: int) -> float:
+    """How long one byte takes on the link [s] (8N1: 10 bits)."""
+    return 10 / baud
+
+
+def test_a_command_takes_effect_when_its_last_byte_arrives_at_9600() -> None:
+    line = b"#0P1500#1P1600#2P1700T100\r"
+    expected = len(line) * byte_time(9600)  # 27 bytes: 28 ms
+    with SSC32Emulator(baud=9600) as emu, serial.Serial(emu.port, 9600, timeout=1) as ser:
+        written = time.monotonic()
+        ser.write(line)
+        assert time.monotonic() - written < 0.005, "the host's write returns at once"
+        time.sleep(max(0.0, written + 0.6 * expected - time.monotonic()))
+        assert emu.history == [] and emu.pulses() == {}, "executed before its carriage return arrived"
+        wait_for(lambda: len(emu.history) == 1)
+        seen = time.monotonic() - written
+        assert emu.history[0].time - written == pytest.approx(expected, abs=0.003)
+        assert seen == pytest.approx(expected, abs=0.01)
+        assert emu.pulses() == {0: 1500.0, 1: 1600.0, 2: 1700.0}
+
+
+def test_link_timing_is_exact_on_a_frozen_clock() -> None:
+    clock = FakeClock()
+    line = b"#0P1500\r"
+    with SSC32Emulator(clock=clock, baud=9600) as emu, serial.Serial(emu.port, 9600, timeout=1) as ser:
+        ser.write(line + line.replace(b"1500", b"1600"))
+        wait_for(lambda: emu.link_backlog() > 0)  # the emulator has read the bytes, at 100.0
+        assert emu.link_backlog() == pytest.approx(2 * len(line) * byte_time(9600))
+        clock.now += len(line) * byte_time(9600) - 1e-9
+        time.sleep(0.02)
+        assert emu.history == []
+        clock.now += 1e-9
+        wait_for(lambda: len(emu.history) == 1)
+        assert emu.history[0].time == pytest.approx(100.0 + len(line) * byte_time(9600), abs=1e-9)
+        assert emu.pulse(0) == 1500.0
+        clock.now += len(line) * byte_time(9600)
+        wait_for(lambda: len(emu.history) == 2)
+        assert emu.pulse(0) == 1600.0 and emu.link_backlog() == 0.0
+
+
+def test_a_host_faster_than_the_link_falls_behind() -> None:
+    """Group moves of 40 bytes at 50 Hz need 2000 B/s; 9600 baud carries 960: each executes later than the last."""
+    dt, n, period = byte_time(9600), 10, 0.02
+    lines = [f"#0P{1000 + 10 * k}#1P1500#2P1500#3P1500#14P1500T20\r".encode() for k in range(n)]
+    assert {len(line) for line in lines} == {40}
+    with SSC32Emulator(baud=9600) as emu, serial.Serial(emu.port, 9600, timeout=1) as ser:
+        written, backlog = [], []
+        start = time.monotonic()
+        for k, line in enumerate(lines):
+            time.sleep(max(0.0, start + k * period - time.monotonic()))
+            written.append(time.monotonic())
+            ser.write(line)
+            time.sleep(0.002)
+            backlog.append(emu.link_backlog())
+        wait_for(lambda: len(emu.history) == n, timeout=2)
+    arrival = -math.inf
+    for k, move in enumerate(emu.history):
+        arrival = max(arrival, written[k]) + 40 * dt  # the link is busy from the first write on
+        assert move.time == pytest.approx(arrival, abs=0.003)
+        assert move.pulses[0] == 1000 + 10 * k  # in order
+    lag = [move.time - w for move, w in zip(emu.history, written, strict=True)]
+    assert all(b > a for a, b in itertools.pairwise(lag)), lag
+    assert lag[-1] == pytest.approx(n * 40 * dt - (n - 1) * period, abs=0.01)  # 0.237 s
+    assert all(b > a for a, b in itertools.pairwise(backlog)), backlog
+
+
+@pytest.mark.parametrize(("query", "size"), [(b"Q\r", 1), (b"QP0\r", 1), (b"VER\r", 15)])
+def test_query_delay_delays_the_reply(query: bytes, size: int) -> None:
+    delays = {}
+    for query_delay in (0.0, 0.05):
+        with SSC32Emulator(baud=115200, query_delay=query_delay) as emu, \
+                serial.Serial(emu.port, 115200, timeout=1) as ser:
+            send(ser, emu, b"#0P1500\r")
+            written = time.monotonic()
+            ser.write(query)
+            assert len(ser.read(size)) == size
+            delays[query_delay] = time.monotonic() - written
+    link = (len(query) + size) * byte_time(115200)
+    assert delays[0.0] == pytest.approx(link, abs=0.005)
+    assert delays[0.05] == pytest.approx(0.05 + link, abs=0.005)
+
+
+def test_replies_travel_at_the_link_rate() -> None:
+    with SSC32Emulator(baud=9600, query_delay=0.0) as emu, serial.Serial(emu.port, 9600, timeout=1) as ser:
+        written = time.monotonic()
+        ser.write(b"VER\r")
+        assert ser.read_until(b"\r") == b"SSC32-V2.50USB\r"
+        assert time.monotonic() - written == pytest.approx((4 + 15) * byte_time(9600), abs=0.005)  # 20 ms
+
+
+def test_a_line_feed_alone_does_not_end_a_command(emu: SSC32Emulator, ser: serial.Serial) -> None:
+    ser.write(b"#0P1500\n")
+    ser.write(b"VER\n")
+    time.sleep(0.05)
+    assert emu.history == [] and emu.pulses() == {} and ser.in_waiting == 0
+    send(ser, emu, b"\r")  # the two are one command now: not understood
+    assert emu.errors == ["#0P1500VER"]
+    send(ser, emu, b"#0P1500\n\r")
+    assert emu.pulses() == {0: 1500.0} and emu.errors == ["#0P1500VER"]
+
+
+def test_power_cycle_turns_everything_off(fake: tuple[SSC32Emulator, serial.Serial, FakeClock]) -> None:
+    emu, ser, clock = fake
+    send(ser, emu, b"#0P1000#1P1200\r")
+    send(ser, emu, b"#0P2000T1000\r")
+    clock.now += 0.5
+    emu.power_cycle()
+    assert emu.pulses() == {} and emu.target(0) is None and not emu.moving()
+    ser.write(b"QP0QP1\r")
+    assert ser.read(2) == bytes([0, 0])
+    ser.write(b"Q\r")
+    assert ser.read(1) == b"."
+    send(ser, emu, b"#0P1800T1000\r")  # no known position: jumps
+    assert emu.pulse(0) == 1800.0
+    assert emu.segments(0)[-2:] == [(100.5, 100.5, 1500.0, 0.0), (100.5, 100.5, 0.0, 1800.0)]
+    clock.now += 0.1
+    assert emu.segments(1) == [(100.0, 100.0, 0.0, 1200.0), (100.0, 100.5, 1200.0, 1200.0),
+                               (100.5, 100.5, 1200.0, 0.0), (100.5, 100.6, 0.0, 0.0)]
+
+
+def test_reopening_the_port_keeps_the_pulses(emu: SSC32Emulator) -> None:
+    with serial.Serial(emu.port, 115200, timeout=1) as ser:
+        send(ser, emu, b"#0P1500#1P2000\r")
+    assert emu.pulses() == {0: 1500.0, 1: 2000.0}
+    with serial.Serial(emu.port, 115200, timeout=1) as ser:
+        ser.write(b"QP0QP1\r")
+        assert ser.read(2) == bytes([150, 200])
+        send(ser, emu, b"#0P1000T100\r")  # a known position: a timed move, no jump
+        assert emu.pulse(0) > 1000.0
+
+
+def value_at(segments: list[tuple[float, float, float, float]], t: float) -> float:
+    """The output the trace says at ``t``: the last segment containing it (after any jump at ``t``)."""
+    for t0, t1, p0, p1 in reversed(segments):
+        if t0 <= t <= t1:
+            return p1 if t1 == t0 else p0 + (p1 - p0) * (t - t0) / (t1 - t0)
+    return 0.0
+
+
+def test_the_trace_is_the_output(fake: tuple[SSC32Emulator, serial.Serial, FakeClock]) -> None:
+    emu, ser, clock = fake
+    rng = random.Random(7)
+    samples: list[tuple[float, dict[int, float]]] = []
+    script = [b"#0P1000#1P1500\r", b"#0P2000#1P1000T1000\r", b"#0P1000T250\r", b"#1P2000S400\r",
+              b"STOP1\r", b"#0P0\r", b"#0P1200\r", b"#0P1300#1P1400T300\r", b"#0P1500\r"]
+    times = [0.0, 0.2, 0.7, 1.0, 1.5, 2.0, 2.2, 2.5, 2.9]  # [s] after 100.0
+    for cmd, t in zip(script, times, strict=True):
+        while clock.now + 0.06 < 100.0 + t:  # samples between the commands, at random times
+            clock.now += rng.uniform(0.0, 0.06)
+            samples.append((clock.now, {ch: emu.pulse(ch) for ch in (0, 1)}))
+        clock.now = 100.0 + t
+        ser.write(cmd + b"Q\r")  # answered once the command has run (STOP records nothing)
+        assert ser.read(1) in (b"+", b".")
+        samples.append((clock.now, {ch: emu.pulse(ch) for ch in (0, 1)}))
+    clock.now += 1.0
+    samples.append((clock.now, {ch: emu.pulse(ch) for ch in (0, 1)}))
+    for ch in (0, 1):
+        trace = emu.segments(ch)
+        assert trace[0][0] == 100.0 and trace[-1][1] == clock.now
+        for (_, a1, _, ap1), (b0, _, bp0, _) in itertools.pairwise(trace):
+            assert b0 == a1 and bp0 == ap1, "the trace is continuous, jumps included"
+        for t, pulses in samples:
+            assert value_at(trace, t) == pytest.approx(pulses[ch], abs=1e-9), (ch, t)
+    speeds = [(round(t0 - 100, 6), (p1 - p0) / (t1 - t0)) for t0, t1, p0, p1 in emu.segments(0) if t1 > t0]
+    assert speeds[:4] == [(0.0, 0.0), (0.2, pytest.approx(1000.0)), (0.7, pytest.approx(-2000.0)),
+                          (0.95, 0.0)]
+    jumps = [(round(t0 - 100, 6), p0, p1) for t0, t1, p0, p1 in emu.segments(0) if t1 == t0]
+    assert jumps == [(0.0, 0.0, 1000.0), (2.0, 1000.0, 0.0), (2.2, 0.0, 1200.0), (2.9, 1300.0, 1500.0)]
+    # ch1: 1500 -> 1000 in 1 s from 0.2; at 1.0 (1100) S400 toward 2000; stopped at 1.5 (1300); T300 to 1400
+    speeds1 = [(round(t0 - 100, 6), (p1 - p0) / (t1 - t0)) for t0, t1, p0, p1 in emu.segments(1) if t1 > t0]
+    assert speeds1 == [(0.0, 0.0), (0.2, pytest.approx(-500.0)), (1.0, pytest.approx(400.0)),
+                       (1.5, 0.0), (2.5, pytest.approx((1400 - 1300) / 0.3)), (2.8, 0.0)]

@@ -2,37 +2,66 @@
 
 It speaks the board's ASCII serial protocol on a pseudo-terminal, so that an adapter opens
 ``serial.Serial(emulator.port, 115200, timeout=...)`` exactly as it opens ``/dev/ttyUSB0``,
-and records what it received (``history``, ``out_of_range``, ``errors``) for tests to check.
-Run one by hand with ``python -m clients.emulators.ssc32``: it prints the port and serves until Ctrl-C.
+and records what it received (``history``, ``out_of_range``, ``errors``) and what it output
+(``segments``) for tests to check. Run one by hand with ``python -m clients.emulators.ssc32``:
+it prints the port and serves until Ctrl-C.
 
-Covered (SSC-32U user guide, "Commands"), one command per line:
+Covered (SSC-32U user guide, "Commands"); a command ends with a carriage return (``\\r``, ASCII 13)
+and only then takes effect:
 
 - ``#<ch>P<pw>[S<spd>] ... [T<time>]<cr>``: a group move. Channels 0-31, pulse widths [us],
   speeds [us/s], time [ms] (65535 max). Every servo of the group starts and ends together; the
   move lasts T, or longer if a servo's S needs it; with neither, it is immediate. Pulses change
-  linearly in time. A servo never commanded (or turned off) has no known position: it jumps.
+  linearly in time. A servo never commanded (or turned off, or since a ``power_cycle()``) has no
+  known position: it jumps at once to its pulse.
   Pulses outside 500-2500 us are clamped (as users measured on the board) and recorded in ``out_of_range``;
   ``P0`` turns the channel's pulses off (the real board's undocumented behaviour), and is recorded too.
 - ``Q<cr>``: ``+`` while a move is in progress, ``.`` when done; no carriage return.
-- ``QP<ch><cr>`` (also ``QP<ch>QP<ch>...``): one binary byte per channel, pulse width / 10 (0 if off).
+- ``QP<ch><cr>`` (also ``QP<ch>QP<ch>...``): one binary byte per channel, pulse width / 10 (0 if off),
+  from the board's own interpolation at the moment the query is executed (its ``\\r`` has arrived).
 - ``VER<cr>``: the version string and a carriage return.
 - ``STOP<ch><cr>`` (SSC-32U): stops that servo where it is. As the guide says, ``Q`` still answers
   ``+`` until the original move's time has elapsed.
 
-Spaces and tabs are ignored, and letters may be either case. Lines end with ``\\r``, ``\\r\\n`` or ``\\n``.
+Spaces, tabs and line feeds are ignored, as the guide says, and letters may be either case: only
+``\\r`` ends a command, so ``#0P1500\\n`` waits for a ``\\r`` and ``#0P15\\n00\\r`` is ``#0P1500``.
 Anything else (offsets ``PO``, digital outputs ``L``/``H``, inputs ``A``-``H``, registers, ``#<ch>P``
 with a channel above 31, ...) is ignored and recorded in ``errors``.
 
+The link and the board's timing (``baud``, ``query_delay``; all times on ``clock``):
+
+- The serial link runs at ``baud`` (8N1: 10 bits a byte), both ways. The SSC-32U ships at 9600; its
+  button selects 9600, 38400 or 115200, and register R4 any other rate (57600, ...). The default here
+  is 115200, the rate the project's adapter opens at. The host's writes return at once (the USB-serial
+  chip and the OS buffer them); byte ``i`` of a write the emulator reads at ``t`` reaches the board's
+  parser at ``max(t, end of the previous byte) + (i + 1) * 10 / baud``, so a host that writes faster than
+  the link gets its commands executed late, in order (``link_backlog()``). A command is executed at the
+  arrival of its ``\\r``: that is the time ``history`` records and the board's state changes, exactly,
+  whenever the emulator's thread gets to it. ``baud=None`` is an ideal link (instant), for exact tests
+  on a frozen clock.
+- Replies to ``Q``, ``QP`` and ``VER`` leave the board ``query_delay`` after the query has been executed
+  (the guide: 50 us to 5 ms, "typically within 100 us"; the default is 100 us), then travel back at the
+  same rate: each byte is written to the terminal when its last bit would have reached the host.
+- Opening and closing the port does not reset the board (the terminal's other end stays open): it keeps
+  its pulses across an adapter's restart. ``power_cycle()`` turns every channel off, as a board just powered.
+- ``segments(channel)`` is the exact pulse output over time, piecewise linear: the board's interpolation,
+  holds, and jumps (zero-length segments: a first move, an immediate move, ``P0``, a power cycle).
+
 Where the real board differs, or may:
 
-- It ignores line feeds: only ``\\r`` ends a command there, so a ``\\n``-only adapter works here but
-  not on the board.
-- It answers ``Q`` and ``QP`` after 50 us to 5 ms; this emulator answers at once.
 - It drives real servos, which have their own maximum speed and lag; here the pulse *is* the position.
+- Its pulse output changes in steps (its update period and resolution are not documented), not continuously;
+  ``QP`` here truncates the pulse to 10 us (whether the board rounds is not documented).
+- Whether the board parses further commands while it waits to answer a query is not documented: here it
+  does (the reply is delayed, the parser is not). Its own receive buffer is not modelled: it never overflows.
+- A host that opens the port at another rate than ``baud`` would read garbage from the board; here the
+  rate the host sets is not checked.
 - The exact ``VER`` string depends on the firmware (the guide does not document it).
 - Whether ``S0``, or a ``T`` on a servo's first move, mean anything on the board is not documented:
   here ``S0`` is no limit, and a first move jumps while ``Q`` answers ``+`` for the group's time.
   A ``T`` above 65535 is cut to 65535 here.
+- ``power_cycle()`` loses the partly received command and the replies not yet sent; bytes still on
+  their way from the host (in the USB-serial chip, which the USB powers) arrive afterwards.
 """
 
 from __future__ import annotations
@@ -45,6 +74,7 @@ import re
 import select
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -54,17 +84,25 @@ PULSE_MIN = 500  # [us], the manual's range
 PULSE_MAX = 2500  # [us]
 CHANNELS = 32
 TIME_MAX = 65535  # [ms], the longest T the board takes
+BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
+FACTORY_BAUD = 9600  # the SSC-32U as shipped
+DEFAULT_BAUD = 115200  # what the project's adapter opens at
+BOARD_BAUDS = (9600, 38400, 57600, 115200)  # the rates an SSC-32U is commonly set to (R4 takes others)
 
 _GROUP = re.compile(r"(?:#\d+P\d+(?:S\d+)?)+(?:T\d+)?")
 _ITEM = re.compile(r"#(\d+)P(\d+)(?:S(\d+))?")
 _QUERY_PULSES = re.compile(r"(?:QP\d+)+")
 _STOP = re.compile(r"STOP(\d+)")
+_IGNORED = b"\n"  # dropped as they arrive; spaces and tabs are dropped when a command is parsed
+
+Segment = tuple[float, float, float, float]  # (t0 [s], t1 [s], p0 [us], p1 [us]), linear between
 
 
 @dataclass(frozen=True)
 class GroupMove:
-    """One group move as received: ``time`` [s, emulator clock], ``pulses`` {channel: us} (before
-    clamping), ``speeds`` {channel: us/s} (channels with an S only), ``duration_ms`` (T, None if absent)."""
+    """One group move as executed: ``time`` [s, emulator clock: the arrival of its carriage return],
+    ``pulses`` {channel: us} (before clamping), ``speeds`` {channel: us/s} (channels with an S only),
+    ``duration_ms`` (T, None if absent)."""
 
     time: float
     pulses: dict[int, int]
@@ -74,38 +112,56 @@ class GroupMove:
 
 @dataclass
 class _Servo:
-    """One channel's motion: linear from ``start`` [us] at ``t0`` [s] to ``target`` [us] at ``t1`` [s]."""
+    """One channel's motion: linear from ``start`` [us] at ``t0`` [s] to ``target`` [us] at ``t1`` [s], then held."""
 
     start: float
-    target: int
+    target: float
     t0: float
     t1: float
 
     def at(self, now: float) -> float:
         """Pulse width [us] at time ``now`` [s]."""
         if now >= self.t1:
-            return float(self.target)
+            return self.target
         if now <= self.t0:
             return self.start
         return self.start + (self.target - self.start) * (now - self.t0) / (self.t1 - self.t0)
 
 
 class SSC32Emulator(PtyEmulator):
-    """An SSC-32 on a pseudo-terminal; ``start()`` (or ``with``) returns the path to open with pyserial."""
+    """An SSC-32 on a pseudo-terminal; ``start()`` (or ``with``) returns the path to open with pyserial.
+
+    ``baud``: the link's rate [bit/s] (None: instant); ``query_delay`` [s]: how long after a query is
+    executed its reply leaves the board; ``clock`` [s]: the emulator's time, for every timestamp.
+    """
 
     name = "ssc32-emulator"
     keep_slave = True  # the board does not reset when its port is opened
 
-    def __init__(self, *, version: str = "SSC32-V2.50USB", clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, *, version: str = "SSC32-V2.50USB", clock: Callable[[], float] = time.monotonic,
+                 baud: int | None = DEFAULT_BAUD, query_delay: float = 100e-6) -> None:
+        if baud is not None and baud <= 0:
+            raise ValueError(f"baud must be positive or None, not {baud}")
+        if not query_delay >= 0:
+            raise ValueError(f"query_delay must be >= 0 s, not {query_delay}")
         super().__init__()
         self.version = version
         self.clock = clock  # [s]
+        self.baud = baud
+        self.query_delay = query_delay  # [s]
         self.history: list[GroupMove] = []
         self.out_of_range: list[tuple[int, int]] = []  # (channel, pulse [us]) received outside 500..2500
         self.errors: list[str] = []  # lines not understood, as received
         self.responding = True  # False: reads and discards everything, answers and executes nothing
-        self._servos: dict[int, _Servo] = {}
+        self._servos: dict[int, _Servo] = {}  # channels with pulses
+        self._off_since: dict[int, float] = {}  # channels turned off (P0, power cycle): since when [s]
+        self._trace: dict[int, list[Segment]] = {}  # closed segments, per channel
         self._busy_until = -math.inf  # [s] end of the latest move, for Q
+        self._rx: deque[tuple[float, int]] = deque()  # (arrival at the board [s], byte), not yet parsed
+        self._rx_free = -math.inf  # [s] when the host-to-board link has sent all it was given
+        self._tx: deque[tuple[float, int]] = deque()  # (arrival at the host [s], byte), not yet written
+        self._tx_free = -math.inf  # [s] when the board-to-host link has sent all it was given
+        self._line = bytearray()  # the command being received
         self._lock = threading.Lock()
 
     # -- state, for tests --------------------------------------------------------------------
@@ -113,87 +169,178 @@ class SSC32Emulator(PtyEmulator):
     def pulse(self, channel: int) -> float:
         """Current pulse width of ``channel`` [us], interpolated now; 0.0 if never commanded or off."""
         with self._lock:
-            servo = self._servos.get(channel)
-            return 0.0 if servo is None else servo.at(self.clock())
+            now = self._advance()
+            return self._pulse_at(channel, now)
 
     def pulses(self) -> dict[int, float]:
         """Current pulse width [us] of every channel that has one (commanded, not off)."""
         with self._lock:
-            now = self.clock()
+            now = self._advance()
             return {ch: servo.at(now) for ch, servo in sorted(self._servos.items())}
 
     def target(self, channel: int) -> int | None:
         """The pulse width [us] ``channel`` is moving to (or stays at); None if never commanded or off."""
         with self._lock:
+            self._advance()
             servo = self._servos.get(channel)
-            return None if servo is None else servo.target
+            return None if servo is None else round(servo.target)
 
     def moving(self) -> bool:
         """Whether a move is in progress: what ``Q`` answers (``+``)."""
         with self._lock:
-            return self.clock() < self._busy_until
+            return self._advance() < self._busy_until
 
-    # -- protocol ----------------------------------------------------------------------------
+    def link_backlog(self) -> float:
+        """How far behind the host the link is [s]: until the last byte received reaches the board's parser."""
+        with self._lock:
+            now = self._advance()
+            return max(0.0, self._rx_free - now)
+
+    def segments(self, channel: int, until: float | None = None) -> list[Segment]:
+        """The exact pulse output of ``channel``: ``(t0, t1, p0, p1)`` [s, us], linear from ``p0`` at ``t0``
+        to ``p1`` at ``t1``, each starting where the previous one ended, from the channel's first command
+        up to ``until`` (default now). Zero-length segments are jumps; 0 us is no pulse (off)."""
+        with self._lock:
+            now = self._advance()
+            end = now if until is None else min(until, now)
+            return [*self._trace.get(channel, []), *self._open_segments(channel, end)]
+
+    def power_cycle(self) -> None:
+        """Switch the board off and on: every channel off (no pulses, no known position: the next command
+        of each channel jumps), no move in progress; the partly received command and unsent replies are lost."""
+        with self._lock:
+            now = self._advance()
+            for ch in list(self._servos):
+                self._set(ch, None, now)
+            self._busy_until = -math.inf
+            self._line.clear()
+            self._tx.clear()
+            self._tx_free = -math.inf
+
+    # -- the link ------------------------------------------------------------------------------
+
+    def _byte_time(self) -> float:
+        return 0.0 if self.baud is None else BITS_PER_BYTE / self.baud
+
+    def _receive(self, chunk: bytes, now: float) -> None:
+        """Queue bytes the host wrote (read from the terminal at ``now``) at their arrival times."""
+        dt, start = self._byte_time(), max(self._rx_free, now)
+        self._rx.extend((start + (i + 1) * dt, byte) for i, byte in enumerate(chunk))
+        self._rx_free = start + len(chunk) * dt
+
+    def _transmit(self, data: bytes, ready: float) -> None:
+        """Queue a reply that leaves the board at ``ready``."""
+        dt, start = self._byte_time(), max(self._tx_free, ready)
+        self._tx.extend((start + (i + 1) * dt, byte) for i, byte in enumerate(data))
+        self._tx_free = start + len(data) * dt
+
+    def _advance(self) -> float:
+        """Parse and execute every byte arrived by now, write every reply byte due; return now [s]."""
+        now = self.clock()
+        while self._rx and self._rx[0][0] <= now:
+            t, byte = self._rx.popleft()
+            if byte == 13:
+                if self._line:
+                    reply = self._execute(self._line.decode("ascii", "replace"), t)
+                    if reply:
+                        self._transmit(reply, t + self.query_delay)
+                self._line.clear()
+            elif byte not in _IGNORED:
+                self._line.append(byte)
+        out = bytearray()
+        while self._tx and self._tx[0][0] <= now:
+            out.append(self._tx.popleft()[1])
+        if out and self._master >= 0:
+            with contextlib.suppress(BlockingIOError):  # the opener's input buffer is full: lost, as on a UART
+                os.write(self._master, out)
+        return now
+
+    def _next_due(self) -> float:
+        return min(self._rx[0][0] if self._rx else math.inf, self._tx[0][0] if self._tx else math.inf)
 
     def _serve(self) -> None:
-        master, line = self._master, bytearray()
+        master = self._master
         while not self._stop.is_set():
-            if not select.select([master], [], [], 0.05)[0]:
-                continue
-            try:
-                chunk = os.read(master, 4096)
-            except (BlockingIOError, InterruptedError):
-                continue
-            except OSError:  # EIO: no one holds the terminal open (cannot happen while we hold the slave)
-                break
-            if not self.responding:
-                line.clear()
-                continue
-            for byte in chunk:
-                if byte in b"\r\n":
-                    if line:
-                        self._reply(self._execute(line.decode("ascii", "replace")))
-                    line.clear()
-                else:
-                    line.append(byte)
+            with self._lock:
+                wait = self._next_due() - self.clock()
+            # an idle link: check the stop flag now and then; a pending byte: wake for it (at most 5 ms
+            # later, so that a clock that is not time.monotonic, a test's, is seen to move)
+            timeout = 0.05 if wait == math.inf else min(max(wait, 0.0), 0.005)
+            if select.select([master], [], [], timeout)[0]:
+                try:
+                    chunk = os.read(master, 4096)
+                except (BlockingIOError, InterruptedError):
+                    chunk = b""
+                except OSError:  # EIO: no one holds the terminal open (cannot happen while we hold the slave)
+                    break
+                with self._lock:
+                    if self.responding:
+                        self._receive(chunk, self.clock())
+                    else:
+                        self._line.clear()
+            with self._lock:
+                self._advance()
 
-    def _reply(self, data: bytes) -> None:
-        if data and self._master >= 0:
-            with contextlib.suppress(BlockingIOError):  # the opener's input buffer is full: lost, as on a UART
-                os.write(self._master, data)
+    # -- the board -----------------------------------------------------------------------------
 
-    def _execute(self, text: str) -> bytes:
-        """Execute one line (without its terminator); return the reply (b"" for none)."""
+    def _execute(self, text: str, now: float) -> bytes:
+        """Execute one command (without its carriage return) at time ``now``; return the reply (b"" for none)."""
         cmd = text.replace(" ", "").replace("\t", "").upper()
-        with self._lock:
-            now = self.clock()
-            if cmd == "":
-                return b""
-            if cmd == "VER":
-                return self.version.encode("ascii") + b"\r"
-            if cmd == "Q":
-                return b"+" if now < self._busy_until else b"."
-            if _QUERY_PULSES.fullmatch(cmd):
-                channels = [int(c) for c in re.findall(r"\d+", cmd)]
-                if all(ch < CHANNELS for ch in channels):
-                    return bytes(min(255, int(self._pulse_now(ch, now)) // 10) for ch in channels)
-            elif (m := _STOP.fullmatch(cmd)) and int(m[1]) < CHANNELS:
-                self._stop_servo(int(m[1]), now)
-                return b""
-            elif _GROUP.fullmatch(cmd) and self._group_move(cmd, now):
-                return b""
-            self.errors.append(text)
+        if cmd == "":
             return b""
+        if cmd == "VER":
+            return self.version.encode("ascii") + b"\r"
+        if cmd == "Q":
+            return b"+" if now < self._busy_until else b"."
+        if _QUERY_PULSES.fullmatch(cmd):
+            channels = [int(c) for c in re.findall(r"\d+", cmd)]
+            if all(ch < CHANNELS for ch in channels):
+                return bytes(min(255, int(self._pulse_at(ch, now)) // 10) for ch in channels)
+        elif (m := _STOP.fullmatch(cmd)) and int(m[1]) < CHANNELS:
+            self._stop_servo(int(m[1]), now)
+            return b""
+        elif _GROUP.fullmatch(cmd) and self._group_move(cmd, now):
+            return b""
+        self.errors.append(text)
+        return b""
 
-    def _pulse_now(self, channel: int, now: float) -> float:
+    def _pulse_at(self, channel: int, now: float) -> float:
         servo = self._servos.get(channel)
         return 0.0 if servo is None else servo.at(now)
 
-    def _stop_servo(self, channel: int, now: float) -> None:
+    def _open_segments(self, channel: int, now: float) -> list[Segment]:
+        """The output of ``channel`` since its last change, up to ``now``: the move's part done, the hold."""
         servo = self._servos.get(channel)
-        if servo is not None:
-            here = servo.at(now)
-            self._servos[channel] = _Servo(here, round(here), now, now)
+        if servo is None:
+            since = self._off_since.get(channel)
+            return [] if since is None or now <= since else [(since, now, 0.0, 0.0)]
+        out: list[Segment] = []
+        if servo.t1 > servo.t0 and now > servo.t0:
+            end = min(now, servo.t1)
+            out.append((servo.t0, end, servo.start, servo.at(end)))
+        if now > servo.t1:
+            out.append((servo.t1, now, servo.target, servo.target))
+        return out
+
+    def _set(self, channel: int, servo: _Servo | None, now: float) -> None:
+        """Change ``channel``'s motion at ``now`` to ``servo`` (None: off), closing its trace so far."""
+        trace = self._trace.setdefault(channel, [])
+        trace.extend(self._open_segments(channel, now))
+        here = self._pulse_at(channel, now)
+        start = 0.0 if servo is None else servo.start
+        if start != here:
+            trace.append((now, now, here, start))
+        if servo is None:
+            self._servos.pop(channel, None)
+            self._off_since[channel] = now
+        else:
+            self._servos[channel] = servo
+            self._off_since.pop(channel, None)
+
+    def _stop_servo(self, channel: int, now: float) -> None:
+        if channel in self._servos:
+            here = self._servos[channel].at(now)
+            self._set(channel, _Servo(here, here, now, now), now)
 
     def _group_move(self, cmd: str, now: float) -> bool:
         """Start the group move ``cmd`` (normalised); False (nothing done) if a channel is above 31."""
@@ -210,7 +357,7 @@ class SSC32Emulator(PtyEmulator):
             if not PULSE_MIN <= pw <= PULSE_MAX:
                 self.out_of_range.append((ch, pw))
             if pw == 0:
-                self._servos.pop(ch, None)
+                self._set(ch, None, now)
                 moves.pop(ch, None)
                 continue
             target = min(max(pw, PULSE_MIN), PULSE_MAX)
@@ -219,10 +366,10 @@ class SSC32Emulator(PtyEmulator):
             if here is not None and speed:
                 duration = max(duration, abs(target - here) / speed)
         for ch, (here, target) in moves.items():
-            if here is None:  # no known position: jump
-                self._servos[ch] = _Servo(float(target), target, now, now)
+            if here is None or duration == 0:  # no known position, or no time: jump
+                self._set(ch, _Servo(float(target), float(target), now, now), now)
             else:
-                self._servos[ch] = _Servo(here, target, now, now + duration)
+                self._set(ch, _Servo(here, float(target), now, now + duration), now)
         self._busy_until = max(self._busy_until, now + duration)
         return True
 
@@ -232,8 +379,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m clients.emulators.ssc32",
                                      description="An emulated SSC-32 servo controller on a pseudo-terminal.")
     parser.add_argument("--ver", default="SSC32-V2.50USB", help="what VER answers")
+    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                        help=f"the link's rate, bit/s (the SSC-32U ships at {FACTORY_BAUD}; 0: instant)")
+    parser.add_argument("--query-delay", type=float, default=100e-6, help="seconds before a query's reply leaves")
     args = parser.parse_args(argv)
-    with SSC32Emulator(version=args.ver) as emu:
+    with SSC32Emulator(version=args.ver, baud=args.baud or None, query_delay=args.query_delay) as emu:
         print(emu.port, flush=True)
         logs: dict[str, Sequence[object]] = {"move": emu.history, "out of range": emu.out_of_range,
                                              "not understood": emu.errors}
