@@ -306,7 +306,7 @@ def test_a_command_takes_effect_when_its_last_byte_arrives_at_9600() -> None:
         assert emu.history == [] and emu.pulses() == {}, "executed before its carriage return arrived"
         wait_for(lambda: len(emu.history) == 1)
         seen = time.monotonic() - written
-        assert emu.history[0].time - written == pytest.approx(expected, abs=0.003)
+        assert emu.history[0].time - written == pytest.approx(expected, abs=0.005)
         assert seen == pytest.approx(expected, abs=0.01)
         assert emu.pulses() == {0: 1500.0, 1: 1600.0, 2: 1700.0}
 
@@ -348,7 +348,7 @@ def test_a_host_faster_than_the_link_falls_behind() -> None:
     arrival = -math.inf
     for k, move in enumerate(emu.history):
         arrival = max(arrival, written[k]) + 40 * dt  # the link is busy from the first write on
-        assert move.time == pytest.approx(arrival, abs=0.003)
+        assert move.time == pytest.approx(arrival, abs=0.005)
         assert move.pulses[0] == 1000 + 10 * k  # in order
     lag = [move.time - w for move, w in zip(emu.history, written, strict=True)]
     assert all(b > a for a, b in itertools.pairwise(lag)), lag
@@ -462,3 +462,19 @@ def test_the_trace_is_the_output(fake: tuple[SSC32Emulator, serial.Serial, FakeC
     speeds1 = [(round(t0 - 100, 6), (p1 - p0) / (t1 - t0)) for t0, t1, p0, p1 in emu.segments(1) if t1 > t0]
     assert speeds1 == [(0.0, 0.0), (0.2, pytest.approx(-500.0)), (1.0, pytest.approx(400.0)),
                        (1.5, 0.0), (2.5, pytest.approx((1400 - 1300) / 0.3)), (2.8, 0.0)]
+
+
+def test_a_host_at_the_wrong_baud_rate_gets_nothing() -> None:
+    with SSC32Emulator(baud=9600) as emu:  # the SSC-32U as shipped; the adapter's default is 115200
+        with serial.Serial(emu.port, 115200, timeout=0.2) as ser:
+            assert emu.host_baud() == 115200
+            ser.write(b"#0P1500\rVER\r")
+            assert ser.read_until(b"\r") == b""
+            assert emu.history == [] and emu.errors
+            assert all(e.endswith(" bytes sent at 115200 baud to a board at 9600>") for e in emu.errors)
+            assert sum(int(e[1:].split()[0]) for e in emu.errors) == 12
+        with serial.Serial(emu.port, 9600, timeout=1) as ser:
+            send(ser, emu, b"#0P1500\r")
+            ser.write(b"VER\r")
+            assert ser.read_until(b"\r") == b"SSC32-V2.50USB\r"
+            assert emu.pulses() == {0: 1500.0}

@@ -37,8 +37,8 @@ The link and the board's timing (``baud``, ``query_delay``; all times on ``clock
   parser at ``max(t, end of the previous byte) + (i + 1) * 10 / baud``, so a host that writes faster than
   the link gets its commands executed late, in order (``link_backlog()``). A command is executed at the
   arrival of its ``\\r``: that is the time ``history`` records and the board's state changes, exactly,
-  whenever the emulator's thread gets to it. ``baud=None`` is an ideal link (instant), for exact tests
-  on a frozen clock.
+  whenever the emulator's thread gets to it. The host must open the port at ``baud`` (below).
+  ``baud=None`` is an ideal link (instant, at any rate the host sets), for exact tests on a frozen clock.
 - Replies to ``Q``, ``QP`` and ``VER`` leave the board ``query_delay`` after the query has been executed
   (the guide: 50 us to 5 ms, "typically within 100 us"; the default is 100 us), then travel back at the
   same rate: each byte is written to the terminal when its last bit would have reached the host.
@@ -54,8 +54,9 @@ Where the real board differs, or may:
   ``QP`` here truncates the pulse to 10 us (whether the board rounds is not documented).
 - Whether the board parses further commands while it waits to answer a query is not documented: here it
   does (the reply is delayed, the parser is not). Its own receive buffer is not modelled: it never overflows.
-- A host that opens the port at another rate than ``baud`` would read garbage from the board; here the
-  rate the host sets is not checked.
+- A host that opens the port at another rate than ``baud`` (pyserial sets it on the terminal) gets
+  nothing executed and no answer; ``errors`` records each lost write. On the board the bytes become
+  garbage, which may by chance parse as something, and its replies would reach the host as garbage.
 - The exact ``VER`` string depends on the firmware (the guide does not document it).
 - Whether ``S0``, or a ``T`` on a servo's first move, mean anything on the board is not documented:
   here ``S0`` is no limit, and a first move jumps while ``Q`` answers ``+`` for the group's time.
@@ -72,6 +73,7 @@ import math
 import os
 import re
 import select
+import termios
 import threading
 import time
 from collections import deque
@@ -93,6 +95,8 @@ _GROUP = re.compile(r"(?:#\d+P\d+(?:S\d+)?)+(?:T\d+)?")
 _ITEM = re.compile(r"#(\d+)P(\d+)(?:S(\d+))?")
 _QUERY_PULSES = re.compile(r"(?:QP\d+)+")
 _STOP = re.compile(r"STOP(\d+)")
+_TERMIOS_BAUDS = {getattr(termios, f"B{r}"): r for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+                  if hasattr(termios, f"B{r}")}
 _IGNORED = b"\n"  # dropped as they arrive; spaces and tabs are dropped when a command is parsed
 
 Segment = tuple[float, float, float, float]  # (t0 [s], t1 [s], p0 [us], p1 [us]), linear between
@@ -190,6 +194,15 @@ class SSC32Emulator(PtyEmulator):
         with self._lock:
             return self._advance() < self._busy_until
 
+    def host_baud(self) -> int | None:
+        """The rate [bit/s] the host set on its end of the terminal (None: unknown, or not started)."""
+        if self._slave < 0:
+            return None
+        try:
+            return _TERMIOS_BAUDS.get(termios.tcgetattr(self._slave)[5])
+        except termios.error:
+            return None
+
     def link_backlog(self) -> float:
         """How far behind the host the link is [s]: until the last byte received reaches the board's parser."""
         with self._lock:
@@ -273,11 +286,16 @@ class SSC32Emulator(PtyEmulator):
                     chunk = b""
                 except OSError:  # EIO: no one holds the terminal open (cannot happen while we hold the slave)
                     break
+                host_baud = self.host_baud()
                 with self._lock:
-                    if self.responding:
-                        self._receive(chunk, self.clock())
-                    else:
+                    if not self.responding:
                         self._line.clear()
+                    elif chunk and self.baud is not None and host_baud not in (None, self.baud):
+                        # framing errors: the board reads garbage, executes nothing of it, answers nothing
+                        self.errors.append(f"<{len(chunk)} bytes sent at {host_baud} baud to a board at {self.baud}>")
+                        self._line.clear()
+                    else:
+                        self._receive(chunk, self.clock())
             with self._lock:
                 self._advance()
 
@@ -380,7 +398,8 @@ def main(argv: list[str] | None = None) -> int:
                                      description="An emulated SSC-32 servo controller on a pseudo-terminal.")
     parser.add_argument("--ver", default="SSC32-V2.50USB", help="what VER answers")
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD,
-                        help=f"the link's rate, bit/s (the SSC-32U ships at {FACTORY_BAUD}; 0: instant)")
+                        help=f"the link's rate, bit/s (the SSC-32U ships at {FACTORY_BAUD}); open the port at"
+                        " the same rate, or nothing is executed; 0: an instant link that takes any rate")
     parser.add_argument("--query-delay", type=float, default=100e-6, help="seconds before a query's reply leaves")
     args = parser.parse_args(argv)
     with SSC32Emulator(version=args.ver, baud=args.baud or None, query_delay=args.query_delay) as emu:
