@@ -9,9 +9,20 @@ started, done, rejected, aborted, fault). A controller that stops answering is a
 the adapter stops executing, reports it, and withdraws its token (so ``move`` answers
 ``no_adapter``) until it answers again.
 
+A trajectory is checked by its motion (:mod:`clients.trajectory_message`), then here: its id
+runs at most once, its first sample is near where the arm is, and the arm's position must be
+known (``homed``; a controller that lost it refuses with ``position_unknown`` until an
+operator homes it or confirms its rest pose on ``<prefix>/<robot>/unlock``). A ``stop`` is
+never refused: any put on ``<prefix>/<robot>/estop`` (the service's ``stop`` uses it too, and
+so does a trajectory of kind ``stop``) brakes the arm from the adapter's own state, within
+every limit (:meth:`stop_command`), whatever the service believed. The adapter needs no
+service to run what it accepted: if the service dies mid-move, the move is finished, and the
+estop still works through the router.
+
 A subclass implements :meth:`execute` (send what is due at time ``t`` of a trajectory),
 :meth:`hold` (stop now), :meth:`measure` (the arm's state, as the hardware reports it or as
-last commanded) and :meth:`check` (is the controller alive?).
+last commanded) and :meth:`check` (is the controller alive?); it may override
+:meth:`stop_command` (how to stop from here) and :meth:`unlock`.
 """
 
 from __future__ import annotations
@@ -22,20 +33,27 @@ import threading
 import time
 import uuid
 from abc import ABC, abstractmethod
+from collections import OrderedDict
 from typing import Any, TypeVar
 
 import numpy as np
 import serial
 import zenoh
 
+import planning
 from planning import JointState
-from robots import ArmdError, BadRequest, Robot
+from robots import ArmdError, BadRequest, PositionUnknown, Robot
 from service.protocol import encode
 
-from .trajectory_message import Command, parse
+from .trajectory_message import Command, motion, parse
 
 log = logging.getLogger("armd.adapter")
 JSON = zenoh.Encoding.APPLICATION_JSON
+START_TOL = 0.02  # [rad] how far a trajectory's first sample may be from where the arm is, at rest
+START_LAG = 0.1  # [s] ... plus this long at the arm's present speed (the planner's state was a little old)
+SEEN_IDS = 4096  # trajectory ids remembered, so that a replayed one is refused
+CONTROL_BYTES = 4096  # [bytes] the most an estop or unlock message may carry
+UNLOCKS = ("home", "assume_rest")
 
 
 class ControllerFault(ArmdError):
@@ -44,12 +62,20 @@ class ControllerFault(ArmdError):
     code = "fault"
 
 
-def open_port(port: str, baud: int, timeout: float, write_timeout: float) -> serial.SerialBase:
-    """A serial port or pyserial URL, opened; :class:`ControllerFault` naming it if it cannot be."""
+def open_port(port: str, baud: int, timeout: float, write_timeout: float, *,
+              exclusive: bool = False) -> serial.SerialBase:
+    """A serial port or pyserial URL, opened; :class:`ControllerFault` naming it if it cannot be
+    (missing, or busy: with ``exclusive`` another program's lock on it is refused)."""
     try:
-        return serial.serial_for_url(port, baudrate=baud, timeout=timeout, write_timeout=write_timeout)
-    except (serial.SerialException, ValueError) as e:
-        raise ControllerFault(f"cannot open {port}: {e}") from None
+        ser = serial.serial_for_url(port, do_not_open=True, baudrate=baud, timeout=timeout,
+                                    write_timeout=write_timeout)
+        if exclusive and hasattr(ser, "exclusive"):
+            ser.exclusive = True
+        ser.open()
+        return ser
+    except (serial.SerialException, ValueError, OSError) as e:
+        why = "busy (another program has it open)" if "lock" in str(e).lower() else str(e)
+        raise ControllerFault(f"cannot open {port}: {why}") from None
 
 
 A = TypeVar("A")
@@ -86,13 +112,17 @@ class Adapter(ABC):
         self._new = False
         self._finished = True
         self.fault: str | None = None
+        self.homed = True  # whether the arm's position is known (a subclass that can lose it says so)
+        self.position_source = "commanded"  # or "measured": what the published state is
+        self._seen: OrderedDict[str, None] = OrderedDict()  # ids accepted, newest last
+        self._unlock: str | None = None  # an operator's unlock request, for the control loop
+        self._latest: JointState = JointState.at_rest(np.array(robot.neutral, dtype=float))
         self._state_pub = session.declare_publisher(f"{base}/state", encoding=JSON)
         self._event_pub = session.declare_publisher(f"{base}/events", encoding=JSON,
                                                     congestion_control=zenoh.CongestionControl.BLOCK)
         self._stop = threading.Event()
         self._token: Any = None
-        self._sub: Any = None
-        self._grip_sub: Any = None
+        self._subs: list[Any] = []
         self.gripper_opening: float | None = None
         self._thread = threading.Thread(target=self._loop, name=f"{self.kind}-{robot.name}", daemon=True)
 
@@ -122,13 +152,36 @@ class Adapter(ABC):
         """Set the gripper opening in [0, 1] (the default: a simulated gripper just remembers it)."""
         self.gripper_opening = opening
 
+    def stop_command(self, ident: str) -> Command:
+        """The stop to run now: jerk-limited, each joint braking as hard as its limits allow,
+        from the adapter's own state (a state a hair outside a limit is brought inside first:
+        a stop is never refused), sampled at the running trajectory's rate."""
+        with self._lock:
+            rate = self._cmd.rate_hz if self._cmd is not None else None
+        traj = planning.plan_stop(self.robot, self.measure(), rate_hz=rate, clamp=True)
+        vel, acc = motion(traj.position, 1.0 / traj.rate_hz)
+        return Command(ident, "stop", traj.rate_hz, traj.times, traj.position, vel, acc, traj.commands)
+
+    def admit(self, cmd: Command) -> None:
+        """Raise an :class:`ArmdError` if this controller cannot run ``cmd`` (before anything of
+        it is sent; the default: every checked trajectory can run)."""
+        return None
+
+    def unlock(self, how: str) -> None:
+        """An operator's word that the arm's position is known: ``"home"`` (run the homing
+        cycle) or ``"assume_rest"`` (the arm is at its rest pose). Called on the control loop,
+        with the arm still. The default: nothing to unlock."""
+        raise BadRequest(f"the {self.kind} adapter always knows where {self.robot.name} is: nothing to unlock",
+                         field="how")
+
     # -- the Zenoh side ----------------------------------------------------------------------
 
     def activate(self) -> None:
-        """Start: subscribe to trajectories and declare the liveliness token (call when the
-        hardware is ready)."""
-        self._sub = self.session.declare_subscriber(f"{self._base}/trajectory", self._on_trajectory)
-        self._grip_sub = self.session.declare_subscriber(f"{self._base}/gripper", self._on_gripper)
+        """Start: subscribe to trajectories, the gripper, the estop and unlock keys, and declare
+        the liveliness token (call when the hardware is ready)."""
+        for key, callback in (("trajectory", self._on_trajectory), ("gripper", self._on_gripper),
+                              ("estop", self._on_estop), ("unlock", self._on_unlock)):
+            self._subs.append(self.session.declare_subscriber(f"{self._base}/{key}", callback))
         self._publish_state()  # where the arm is, before anyone can plan for it
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
         self._thread.start()
@@ -142,24 +195,64 @@ class Adapter(ABC):
 
     def _on_gripper(self, sample: zenoh.Sample) -> None:
         try:
-            msg = json.loads(sample.payload.to_bytes())
-            opening = float(msg["opening"])
-            if not 0.0 <= opening <= 1.0:
-                raise ValueError(f"opening {opening} outside [0, 1]")
-            self.grip(opening)
-            self.event("gripper", id=msg.get("id"), opening=opening)
+            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            opening = msg["opening"]
+            if isinstance(opening, bool) or not isinstance(opening, (int, float)) or not 0.0 <= opening <= 1.0:
+                raise ValueError(f"opening must be a number in [0, 1], got {opening!r}")
+            self.grip(float(opening))
+            self.event("gripper", id=msg.get("id"), opening=float(opening))
         except (ValueError, KeyError, TypeError, ArmdError) as e:
             self.event("rejected", reason=f"gripper command: {e}")
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
         try:
-            if self.fault:
-                raise ControllerFault(f"the controller is faulty: {self.fault}")
             cmd = parse(self.robot, sample.payload.to_bytes())
         except ArmdError as e:
             log.warning("%s: trajectory rejected: %s", self.robot.name, e.message)
             self.event("rejected", reason=e.message, error=e.to_dict())
             return
+        if cmd.kind == "stop":  # a stop is never refused, and always from the adapter's own state
+            self.emergency_stop(cmd.id, "stop trajectory")
+            return
+        try:
+            if self.fault:
+                raise ControllerFault(f"the controller is faulty: {self.fault}")
+            self.admit(cmd)
+            if not self.homed:
+                raise PositionUnknown(f"{self.robot.name}'s position is unknown (the controller lost it): home it "
+                                      "or confirm its rest pose (armd unlock) before moving it",
+                                      robot=self.robot.name)
+            self._check_start(cmd)
+            with self._lock:
+                if cmd.id in self._seen:
+                    raise BadRequest(f"trajectory {cmd.id} was accepted before: an id runs at most once", field="id")
+                self._remember(cmd.id)
+        except ArmdError as e:
+            log.warning("%s: trajectory %s rejected: %s", self.robot.name, cmd.id, e.message)
+            self.event("rejected", id=cmd.id, reason=e.message, error=e.to_dict())
+            return
+        self._install(cmd)
+
+    def _remember(self, ident: str) -> None:
+        self._seen[ident] = None
+        while len(self._seen) > SEEN_IDS:
+            self._seen.popitem(last=False)
+
+    def _check_start(self, cmd: Command) -> None:
+        """The first sample must be where the arm is (within ``START_TOL``, plus ``START_LAG``
+        at its present speed): a trajectory planned from elsewhere would make the arm jump."""
+        here = self._latest
+        off = np.abs(cmd.position[0] - here.position)
+        tol = START_TOL + np.abs(here.velocity) * START_LAG
+        if np.any(off > tol):
+            j = int(np.argmax(off - tol))
+            name = self.robot.joint_names[j]
+            raise BadRequest(f"the trajectory starts {off[j]:.4f} rad from where {name} is ({here.position[j]:.4f} rad;"
+                             f" at most {tol[j]:.4f} here): planned from another state", field="position",
+                             joint=name)
+
+    def _install(self, cmd: Command) -> None:
+        """Make ``cmd`` the running trajectory (the control loop starts it on its next pass)."""
         with self._lock:
             if self._cmd is not None and not self._finished:
                 self.event("aborted", id=self._cmd.id, reason=f"replaced by {cmd.id}")
@@ -170,12 +263,68 @@ class Adapter(ABC):
             self._new = True
             self._finished = False
 
+    def _on_estop(self, sample: zenoh.Sample) -> None:
+        """Any put stops the arm: a malformed message too (its id is made up)."""
+        ident, reason = uuid.uuid4().hex, "estop"
+        try:
+            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            if isinstance(msg, dict):
+                if isinstance(msg.get("id"), str) and 0 < len(msg["id"]) <= 64:
+                    ident = msg["id"]
+                if isinstance(msg.get("by"), str):
+                    reason = f"estop by {msg['by'][:64]}"
+        except ValueError:
+            pass
+        self.emergency_stop(ident, reason)
+
+    def emergency_stop(self, ident: str, reason: str) -> None:
+        """Brake from the adapter's own state at once (:meth:`stop_command`); never refused.
+        With the controller faulty (or the stop impossible to plan), hold it instead."""
+        log.info("%s: %s (%s)", self.robot.name, reason, ident)
+        try:
+            cmd = None if self.fault else self.stop_command(ident)
+        except Exception as e:  # a stop must happen whatever: hold
+            log.exception("%s: the stop could not be planned: holding", self.robot.name)
+            self.event("fault", reason=f"stop not planned ({type(e).__name__}: {e}): held")
+            cmd = None
+        if cmd is None:
+            with self._lock:
+                if self._cmd is not None and not self._finished:
+                    self.event("aborted", id=self._cmd.id, reason=reason)
+                self._finished = True
+            self.event("accepted", id=ident, trajectory="stop", duration=0.0, reason=reason)
+            try:
+                self.hold()
+            except Exception:  # the controller may be gone
+                log.debug("hold failed", exc_info=True)
+            self.event("done", id=ident)
+            return
+        with self._lock:
+            self._remember(ident)
+        self._install(cmd)
+
+    def _on_unlock(self, sample: zenoh.Sample) -> None:
+        try:
+            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            how = msg.get("how") if isinstance(msg, dict) else None
+            if how not in UNLOCKS:
+                raise BadRequest(f"unlock needs 'how': one of {', '.join(UNLOCKS)}", field="how")
+            with self._lock:
+                if self._cmd is not None and not self._finished:
+                    raise BadRequest("the arm is moving: stop it before unlocking", field="how")
+                self._unlock = how
+        except ValueError as e:
+            self.event("rejected", reason=f"unlock: not JSON ({e})")
+        except ArmdError as e:
+            self.event("rejected", reason=f"unlock: {e.message}", error=e.to_dict())
+
     def _loop(self) -> None:
         next_state = next_check = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
             with self._lock:
                 cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
+                unlock, self._unlock = (self._unlock, None) if finished else (None, self._unlock)
                 self._new = False
             try:
                 if now >= next_check:
@@ -183,6 +332,8 @@ class Adapter(ABC):
                     self.check()
                     if self.fault:
                         self._recovered()
+                if unlock is not None:
+                    self._do_unlock(unlock)
                 if cmd is not None and not finished and not self.fault:
                     if first:
                         self.event("started", id=cmd.id)
@@ -191,6 +342,7 @@ class Adapter(ABC):
                             if self._cmd is cmd:
                                 self._finished = True
                         self.event("done", id=cmd.id)
+                        self.finished(cmd)
             except ControllerFault as e:
                 self._faulted(e.message, cmd)
             except Exception as e:  # a bug must not leave the arm moving unattended
@@ -200,6 +352,20 @@ class Adapter(ABC):
                 next_state = now + self.state_period
                 self._publish_state()
             self._stop.wait(self.tick)
+
+    def finished(self, cmd: Command) -> None:
+        """Called on the control loop when ``cmd`` is complete (the default: nothing)."""
+        return None
+
+    def _do_unlock(self, how: str) -> None:
+        try:
+            self.unlock(how)
+        except ArmdError as e:
+            self.event("rejected", reason=f"unlock: {e.message}", error=e.to_dict())
+            if isinstance(e, ControllerFault):
+                raise
+            return
+        self.event("unlocked", how=how)
 
     def _faulted(self, reason: str, cmd: Command | None) -> None:
         if self.fault == reason:
@@ -237,14 +403,14 @@ class Adapter(ABC):
             log.debug("measure failed", exc_info=True)
             return
         moving = cmd is not None and not finished and not self.fault
-        zeros = np.zeros(self.robot.nq)
+        if not moving:
+            s = JointState.at_rest(s.position)
+        self._latest = s
         message = encode({
             "robot": self.robot.name, "adapter": self.id, "kind": self.kind,
-            "position": s.position.tolist(),
-            "velocity": (s.velocity if moving else zeros).tolist(),
-            "acceleration": (s.acceleration if moving else zeros).tolist(),
+            "position": s.position.tolist(), "velocity": s.velocity.tolist(), "acceleration": s.acceleration.tolist(),
             "moving": moving, "trajectory": None if cmd is None else cmd.id, "fault": self.fault,
-            "time": time.time()})
+            "homed": self.homed, "source": self.position_source, "time": time.time()})
         try:
             self._state_pub.put(message)
         except zenoh.ZError:  # the session is gone: nobody to tell
@@ -254,7 +420,7 @@ class Adapter(ABC):
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
-        for entity in (self._token, self._sub, self._grip_sub, self._state_pub, self._event_pub):
+        for entity in (self._token, *self._subs, self._state_pub, self._event_pub):
             if entity is None:
                 continue
             try:
@@ -269,8 +435,13 @@ class SerialAdapter(Adapter):
     (:func:`open_port`), and the lock its users share (the control loop, gripper requests)."""
 
     def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int, timeout: float,
-                 write_timeout: float, prefix: str = "armd", state_hz: float = 50.0, check_period: float = 0.5) -> None:
+                 write_timeout: float, prefix: str = "armd", state_hz: float = 50.0, check_period: float = 0.5,
+                 serial_port: serial.SerialBase | None = None) -> None:
         self.port = port
         self._io = threading.Lock()
-        self.serial = open_port(port, baud, timeout, write_timeout)
+        if serial_port is None:
+            self.serial = open_port(port, baud, timeout, write_timeout)
+        else:  # opened already (the command line opens the port before joining Zenoh)
+            self.serial = serial_port
+            self.serial.baudrate, self.serial.timeout, self.serial.write_timeout = baud, timeout, write_timeout
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)

@@ -154,48 +154,101 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_adapter(args: argparse.Namespace) -> int:
+    """The port first (a missing or busy one: one line naming it, exit 1), then Zenoh (retried
+    until a router answers), then the adapter."""
     import logging
-
-    import zenoh
-
-    from service.zconfig import network_config
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     arms = _all_robots(args.robots_dir)
     if args.robot not in arms:
         raise robots.UnknownRobot(args.robot, arms)
-    connect = args.connect or ([] if args.listen or args.config else ["tcp/127.0.0.1:7447"])
-    zenoh.init_log_from_env_or("error")
-    session = zenoh.open(network_config(listen=args.listen, connect=connect or None, config_file=args.config))
+    arm = arms[args.robot]
+    port = None
+    if args.kind != "sim":
+        from clients.adapter import ControllerFault, open_port
+
+        if not args.port:
+            raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
+        baud = args.baud or int(arm.controller.get("baud", 115200))  # type: ignore[call-overload]
+        try:
+            port = open_port(args.port, baud, 0.5, 0.5, exclusive=True)
+        except ControllerFault as e:
+            print(f"armd: {e.message}", file=sys.stderr)
+            return 1
+    stop = _signals()
+    session = _join(args, stop)
+    if session is None:  # interrupted while waiting for a router
+        if port is not None:
+            port.close()
+        return 0
     try:
-        adapter = _make_adapter(args, session, arms[args.robot])
-    except BaseException:
+        adapter = _make_adapter(args, session, arm, port)
+    except robots.ArmdError as e:
         session.close()  # a Zenoh session left open would keep the process from exiting
+        print(f"armd: {e.message}", file=sys.stderr)
+        return 1
+    except BaseException:
+        session.close()
         raise
     print(f"armd {args.kind} adapter {adapter.id} driving {args.robot}; Ctrl-C to stop", flush=True)
     try:
-        _wait_for_signal()
+        while not stop.is_set():
+            stop.wait(0.5)
     finally:
         adapter.close()
         session.close()
     return 0
 
 
-def _make_adapter(args: argparse.Namespace, session: object, arm: Robot) -> Any:
+def _signals() -> Any:
+    import signal
+    import threading
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
+
+
+def _join(args: argparse.Namespace, stop: Any) -> Any:
+    """A Zenoh session, retried every second until a router answers (said once); None if
+    ``stop`` was set meanwhile. Once open, a router that goes away and comes back is rejoined
+    by Zenoh itself (the retry settings of :func:`service.zconfig.network_config`)."""
+    import zenoh
+
+    from service.zconfig import network_config
+
+    connect = args.connect or ([] if args.listen or args.config else ["tcp/127.0.0.1:7447"])
+    zenoh.init_log_from_env_or("error")
+    told = False
+    while not stop.is_set():
+        try:
+            return zenoh.open(network_config(listen=args.listen, connect=connect or None, config_file=args.config))
+        except zenoh.ZError as e:
+            if not told:
+                where = ", ".join(connect) or "the configured endpoints"
+                print(f"armd: no Zenoh router answers at {where} yet ({str(e).split(' at ')[0]}); retrying every "
+                      "second (Ctrl-C to give up)", file=sys.stderr, flush=True)
+                told = True
+            stop.wait(1.0)
+    return None
+
+
+def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: object = None) -> Any:
     if args.kind == "sim":
         from clients.sim import SimAdapter
 
         return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale,  # type: ignore[arg-type]
                           lag=args.lag)
-    if not args.port:
-        raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
     if args.kind == "ssc32":
         from clients.ssc32 import SSC32Adapter
 
-        return SSC32Adapter(session, arm, args.port, baud=args.baud, prefix=args.prefix)  # type: ignore[arg-type]
+        return SSC32Adapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
+                            state_dir=args.state_dir, serial_port=port)
     from clients.grbl import GrblAdapter
 
-    return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix)  # type: ignore[arg-type]
+    return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
+                       serial_port=port)
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -311,6 +364,34 @@ def cmd_stop(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_estop(args: argparse.Namespace) -> int:
+    """Straight to the adapters on ``<prefix>/<robot>/estop`` (no service needed); waits
+    ``--wait`` seconds for them to say they are stopping."""
+    with _client(args) as c:  # type: ignore[attr-defined]
+        acks = c.estop(args.robot, wait=args.wait)
+    for a in acks:
+        print(f"adapter {a['adapter']} ({a['kind']}): stopping, {a.get('duration', 0.0):.3f} s")
+    if not acks:
+        print(f"armd: no adapter of {args.robot} acknowledged the estop within {args.wait} s", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_unlock(args: argparse.Namespace) -> int:
+    """An operator's word to an adapter that lost the arm's position (GRBL after a reset or an alarm)."""
+    how = "home" if args.home else "assume_rest"
+    with _client(args) as c:  # type: ignore[attr-defined]
+        answer = c.unlock(args.robot, how, wait=args.wait)
+    if answer is None:
+        print(f"armd: no adapter of {args.robot} answered the unlock within {args.wait} s", file=sys.stderr)
+        return 1
+    if answer["event"] != "unlocked":
+        print(f"armd: error: {answer.get('reason', answer)}", file=sys.stderr)
+        return 2
+    print(f"{args.robot}: unlocked ({how})")
+    return 0
+
+
 def _limit_args(p: argparse.ArgumentParser) -> None:
     from service.protocol import Limits
 
@@ -388,7 +469,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
     p.add_argument("--lag", type=float, default=0.0, help="first-order servo lag time constant [s] (sim)")
     p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl)")
-    p.add_argument("--baud", type=int, default=115200)
+    p.add_argument("--baud", type=int, default=None, help="the controller's baud rate (default: the arm's "
+                   "[controller] baud)")
+    p.add_argument("--state-dir", help="where the adapter keeps the arm's last pose (ssc32; default "
+                   "$ARMD_STATE_DIR, else ~/.local/state/armd)")
     p.set_defaults(func=cmd_adapter)
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (no zenohd needed)")
@@ -430,6 +514,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("robot")
     _client_args(p)
     p.set_defaults(func=cmd_stop)
+
+    p = sub.add_parser("estop", help="emergency stop, straight to the arm's adapters (no service needed)")
+    p.add_argument("robot")
+    p.add_argument("--wait", type=float, default=1.0, help="seconds to wait for the adapters to answer")
+    _client_args(p)
+    p.set_defaults(func=cmd_estop)
+
+    p = sub.add_parser("unlock", help="tell an adapter that lost the arm's position where the arm is")
+    p.add_argument("robot")
+    how = p.add_mutually_exclusive_group(required=True)
+    how.add_argument("--home", action="store_true", help="run the controller's homing cycle ($H)")
+    how.add_argument("--assume-rest", action="store_true", help="the arm is at its rest pose: I checked")
+    p.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the adapter's answer")
+    _client_args(p)
+    p.set_defaults(func=cmd_unlock)
 
     from clients import demo, view, workspace
 

@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import time
+import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -253,6 +254,55 @@ class ArmClient:
 
     def stop(self, robot: str) -> dict[str, Any]:
         return self.call(f"{robot}/stop")
+
+    def estop(self, robot: str, *, wait: float = 0.0) -> list[dict[str, Any]]:
+        """Emergency stop, put straight to the arm's adapters (``<prefix>/<robot>/estop``: no
+        service needed). Each brakes from its own state within every limit. ``wait`` [s]: how
+        long to collect the adapters' ``accepted`` events for it (returned; [] if none came)."""
+        ident = uuid.uuid4().hex
+        return self._tell(robot, "estop", {"id": ident, "by": "client"}, wait,
+                          lambda e: e.get("event") == "accepted" and e.get("id") == ident, every=True)
+
+    def unlock(self, robot: str, how: str, *, wait: float = 60.0) -> dict[str, Any] | None:
+        """Tell the adapter that lost the arm's position where it is: ``how`` ``"home"`` (run the
+        homing cycle) or ``"assume_rest"`` (the arm is at its rest pose). Returns the adapter's
+        ``unlocked`` or ``rejected`` event, or None if none came within ``wait`` [s]."""
+        answers = self._tell(robot, "unlock", {"how": how}, wait,
+                             lambda e: e.get("event") == "unlocked"
+                             or (e.get("event") == "rejected" and "unlock" in str(e.get("reason", ""))))
+        return answers[0] if answers else None
+
+    def _tell(self, robot: str, key: str, message: dict[str, Any], wait: float, match: Any,
+              every: bool = False) -> list[dict[str, Any]]:
+        """Put ``message`` on ``<prefix>/<robot>/<key>``, and collect the arm's events that
+        ``match`` for ``wait`` seconds (the first one only unless ``every``)."""
+        import threading
+
+        got: list[dict[str, Any]] = []
+        first = threading.Event()
+
+        def on_event(sample: zenoh.Sample) -> None:
+            try:
+                event = orjson.loads(sample.payload.to_bytes())
+            except ValueError:
+                return
+            if isinstance(event, dict) and match(event):
+                got.append(event)
+                first.set()
+
+        sub = self.session.declare_subscriber(f"{self.prefix}/{robot}/events", on_event) if wait > 0 else None
+        try:
+            self.session.put(f"{self.prefix}/{robot}/{key}", encode(message), encoding=JSON,
+                             congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME)
+            if sub is not None:
+                if every:
+                    time.sleep(wait)
+                else:
+                    first.wait(wait)
+        finally:
+            if sub is not None:
+                sub.undeclare()
+        return list(got)
 
     def gripper(self, robot: str, opening: float) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between."""

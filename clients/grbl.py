@@ -49,16 +49,17 @@ _STATUS = re.compile(r"<([A-Za-z]+(?::\d)?)\|MPos:([-\d.,]+)")  # state with its
 class GrblAdapter(SerialAdapter):
     kind = "grbl"
 
-    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int = 115200,
+    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int | None = None,
                  prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, check_period: float = 0.5,
-                 margin: float = 1.25) -> None:
+                 margin: float = 1.25, serial_port: serial.SerialBase | None = None) -> None:
         self.steppers = actuators_of(robot, Stepper, "GRBL")
         self.axes = [a.axis for a in self.steppers]
         if any(ax not in AXES for ax in self.axes):
             raise BadRequest(f"GRBL axes are {', '.join(AXES)}; {robot.name} uses {', '.join(self.axes)}", field="axis")
         self.timeout = timeout  # [s] how long the controller may take to answer (the port's reads poll)
-        super().__init__(session, robot, port, baud=baud, timeout=0.02, write_timeout=timeout, prefix=prefix,
-                         state_hz=state_hz, check_period=check_period)
+        super().__init__(session, robot, port, baud=baud or int(robot.controller.get("baud", 115200)),  # type: ignore[call-overload]
+                         timeout=0.02, write_timeout=timeout, prefix=prefix, state_hz=state_hz,
+                         check_period=check_period, serial_port=serial_port)
         self._buffer = b""
         self._trouble: str | None = None
         self._pending: collections.deque[int] = collections.deque()  # lengths of unacknowledged lines

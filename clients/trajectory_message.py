@@ -1,5 +1,17 @@
 """Reading a published trajectory (``<prefix>/<robot>/trajectory``) on the adapter side, and
-checking it again before anything reaches an actuator (defence in depth)."""
+checking it by its motion before anything reaches an actuator (defence in depth).
+
+What a message declares (velocities, accelerations, a duration) is not trusted: the adapter
+moves the arm through the sampled positions, so those are what is checked. The size is
+bounded before the JSON is parsed; the times must start at 0 and be evenly spaced at
+``1 / rate_hz`` with ``rate_hz`` in [1, 1000] Hz; the samples and the duration are bounded;
+every position within the box and coupled limits and every actuator's range; the
+finite-difference velocity ``(q[k+1] - q[k]) * rate`` and acceleration ``(q[k+1] - 2 q[k] +
+q[k-1]) * rate^2`` within the limits, the arm held at the last sample afterwards (so a
+trajectory must end at rest). One bad sample rejects the whole trajectory. Where the first
+sample must be (near the arm) and that an id runs at most once are the adapter's checks
+(:class:`clients.adapter.Adapter`): they need its state.
+"""
 
 from __future__ import annotations
 
@@ -10,14 +22,24 @@ import orjson
 from numpy.typing import NDArray
 
 import planning
-from robots import BadRequest, Robot
+from robots import BadRequest, LimitError, Robot
 
 FloatArray = NDArray[np.float64]
+
+MAX_BYTES = 8 * 1024 * 1024  # [bytes] of one message, checked before parsing (20,000 samples of 6 joints: ~5 MB)
+MAX_SAMPLES = 20_000  # the service's default max_samples
+MAX_DURATION = 600.0  # [s]
+RATE_RANGE = (1.0, 1000.0)  # [Hz]
+MAX_ID = 64  # [characters]
+KINDS = ("move", "stop")
+RATE_TOL = 1e-6  # relative slack on the finite-difference limits (rounding of the samples)
 
 
 @dataclass(frozen=True)
 class Command:
-    """A trajectory as an adapter executes it: samples, their actuator commands, and its id."""
+    """A trajectory as an adapter executes it: samples, their actuator commands, and its id.
+    ``velocity`` and ``acceleration`` are the samples' finite differences (what the motion
+    is), not what the message declared."""
 
     id: str
     kind: str  # "move" or "stop"
@@ -44,30 +66,73 @@ class Command:
                 (1 - w) * self.acceleration[k] + w * self.acceleration[k + 1])
 
 
+def motion(position: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
+    """Per sample: the forward-difference velocity toward the next sample [rad/s] (0 on the
+    last: the arm holds there) and the second difference [rad/s^2] (the last one with the arm
+    held after the last sample; 0 on the first, whose motion before is the adapter's)."""
+    held = np.vstack([position, position[-1:]])
+    velocity = np.diff(held, axis=0) / dt
+    acceleration = np.zeros_like(position)
+    acceleration[1:] = np.diff(velocity, axis=0) / dt
+    return velocity, acceleration
+
+
 def parse(robot: Robot, payload: bytes) -> Command:
-    """A :class:`Command` from a trajectory message, every sample re-checked against every
-    limit and actuator range of ``robot``: one bad sample rejects the whole trajectory."""
+    """A :class:`Command` from a trajectory message, checked by its motion against every limit
+    and actuator range of ``robot`` (:class:`BadRequest` or :class:`LimitError` naming the
+    first problem: nothing of a refused trajectory is executed)."""
+    if len(payload) > MAX_BYTES:
+        raise BadRequest(f"trajectory message of {len(payload)} bytes; an adapter takes at most {MAX_BYTES}",
+                         field="trajectory", size=len(payload), limit=MAX_BYTES)
     try:
         msg = orjson.loads(payload)
+        if not isinstance(msg, dict):
+            raise TypeError("not a JSON object")
         times = np.asarray(msg["times"], dtype=float)
         pos = np.asarray(msg["position"], dtype=float)
-        vel = np.asarray(msg["velocity"], dtype=float)
-        acc = np.asarray(msg["acceleration"], dtype=float)
-        rate = float(msg["rate_hz"])
-        ident = str(msg.get("id", ""))
-        kind = str(msg.get("kind", "move"))
+        rate = msg["rate_hz"]
+        ident = msg.get("id")
+        kind = msg.get("kind", "move")
     except (ValueError, KeyError, TypeError) as e:
         raise BadRequest(f"malformed trajectory message: {e}", field="trajectory") from None
-    n = robot.nq
-    k = len(times)
-    if k == 0 or pos.shape != (k, n) or vel.shape != (k, n) or acc.shape != (k, n):
-        raise BadRequest(f"trajectory arrays must be ({k}, {n}) for {robot.name}", field="trajectory")
-    if not (np.isfinite(rate) and rate > 0) or not np.allclose(np.diff(times), 1.0 / rate, atol=1e-9):
-        raise BadRequest("trajectory times must be evenly spaced at 1 / rate_hz", field="trajectory")
     if msg.get("robot") not in (None, robot.name):
         raise BadRequest(f"trajectory for {msg.get('robot')!r} sent to {robot.name}", field="robot")
-    jerk = planning.trajectory.forward_jerk(acc, 1.0 / rate)
-    planning.check_samples(robot, times, pos, vel, acc, jerk)
+    if not isinstance(ident, str) or not 0 < len(ident) <= MAX_ID:
+        raise BadRequest(f"a trajectory needs an 'id' (a string of 1 to {MAX_ID} characters)", field="id")
+    if kind not in KINDS:
+        raise BadRequest(f"kind must be one of {', '.join(KINDS)}, got {kind!r}", field="kind")
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not RATE_RANGE[0] <= rate <= RATE_RANGE[1]:
+        raise BadRequest(f"rate_hz must be a number in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz, got {rate!r}",
+                         field="rate_hz")
+    n, k = robot.nq, len(times)
+    if times.ndim != 1 or k == 0 or pos.shape != (k, n):
+        raise BadRequest(f"times must be (k,) and position (k, {n}) for {robot.name}", field="trajectory")
+    if k > MAX_SAMPLES:
+        raise BadRequest(f"{k} samples; an adapter takes at most {MAX_SAMPLES}", field="times", size=k,
+                         limit=MAX_SAMPLES)
+    dt = 1.0 / float(rate)
+    if not (np.all(np.isfinite(times)) and abs(times[0]) <= 1e-9
+            and np.allclose(np.diff(times), dt, rtol=0.0, atol=1e-9)):
+        raise BadRequest("trajectory times must start at 0 and be evenly spaced at 1 / rate_hz", field="times")
+    if times[-1] > MAX_DURATION:
+        raise BadRequest(f"a trajectory of {times[-1]:.1f} s; an adapter takes at most {MAX_DURATION:g} s",
+                         field="times")
+    if not np.all(np.isfinite(pos)):
+        raise BadRequest("trajectory positions must be finite numbers", field="position")
+    vel, acc = motion(pos, dt)
+    planning.check_samples(robot, times, pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros_like(pos))
+    _within(robot, times, vel, robot.limits.velocity, "velocity", "rad/s")
+    _within(robot, times, acc, robot.limits.acceleration, "acceleration", "rad/s^2")
     commands = planning.actuator_commands(robot, times, np.clip(pos, robot.limits.lower, robot.limits.upper))
-    return Command(ident, kind, rate, times, pos, vel, acc, commands)
+    return Command(ident, kind, float(rate), times, pos, vel, acc, commands)
 
+
+def _within(robot: Robot, times: FloatArray, values: FloatArray, limit: FloatArray, kind: str, unit: str) -> None:
+    over = np.abs(values) > limit * (1 + RATE_TOL) + 1e-9
+    if over.any():
+        k, j = (int(i) for i in np.argwhere(over)[0])
+        name = robot.joint_names[j]
+        raise LimitError(f"joint {name!r} moves at {values[k, j]:.6g} {unit} (the samples' finite difference) at "
+                         f"t = {times[k]:.4f} s, over its {kind} limit {limit[j]:.6g} {unit}",
+                         name=name, value=float(values[k, j]), bounds=(-float(limit[j]), float(limit[j])), kind=kind,
+                         time=float(times[k]))

@@ -188,8 +188,10 @@ def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: 
         P[0] = line.q0
         V, A = _derivatives(P, dt)
         J = forward_jerk(A, dt)
+        # the forward differences too: a controller that interpolates linearly between samples
+        # (the SSC-32) moves at exactly those, and adapters check them (by motion, not as declared)
         if (np.all(np.abs(V) <= lim.velocity) and np.all(np.abs(A) <= lim.acceleration)
-                and np.all(np.abs(J) <= lim.jerk)):
+                and np.all(np.abs(J) <= lim.jerk) and np.all(np.abs(np.diff(P, axis=0)) <= lim.velocity * dt)):
             break
         v, a, j = v * SLOWDOWN, a * SLOWDOWN**2, j * SLOWDOWN**3
     else:

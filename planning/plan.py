@@ -13,7 +13,7 @@ from .errors import TrajectoryTooLong
 from .goal import goal_configuration, goal_point
 from .line import line_samples
 from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles
-from .state import JointState, joint_state
+from .state import JointState, clamped, joint_state
 from .trajectory import Trajectory, build
 
 DEFAULT_RATE_HZ = 50.0
@@ -99,9 +99,14 @@ def plan(
     return _sampled(robot, "joint", rate, rpath, max_samples)
 
 
-def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None) -> Trajectory:
-    """From ``state`` (possibly moving) to rest, jerk-limited, as fast as the limits allow."""
+def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None, clamp: bool = False) -> Trajectory:
+    """From ``state`` (possibly moving) to rest, jerk-limited, as fast as the limits allow.
+
+    ``clamp``: a ``state`` (a :class:`JointState`) outside a limit is brought inside it first
+    (:func:`~planning.state.clamped`) instead of being refused: for stops from a measured state."""
     rate = _rate(robot, rate_hz)
+    if clamp and isinstance(state, JointState):
+        state = clamped(robot, state)
     s = joint_state(robot, state, "state")
     return _sampled(robot, "stop", rate, stop_path(robot, s, 1.0 / rate))
 

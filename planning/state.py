@@ -70,3 +70,15 @@ def joint_state(robot: Robot, start: object, field: str = "start") -> JointState
             raise BadRequest(f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
                              f"limit {limit[i]:.4g}", field=f"{field}.{what}")
     return JointState(np.minimum(np.maximum(p, lim.lower), lim.upper), v, a)
+
+
+def clamped(robot: Robot, state: JointState) -> JointState:
+    """``state`` brought inside every limit: each position onto its box, each velocity and
+    acceleration onto its limit. For a stop from a measured state a hair outside (a servo's
+    quantisation, a stepper's whole steps, noise): a stop is never refused, and it brakes from
+    the nearest state the limits allow. Coupled limits are not moved onto (the planner's gate
+    reports a state outside them)."""
+    lim = robot.limits
+    return JointState(np.minimum(np.maximum(np.nan_to_num(state.position), lim.lower), lim.upper),
+                      np.clip(np.nan_to_num(state.velocity), -lim.velocity, lim.velocity),
+                      np.clip(np.nan_to_num(state.acceleration), -lim.acceleration, lim.acceleration))

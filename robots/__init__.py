@@ -18,6 +18,7 @@ from .errors import (
     CoupledLimitError,
     JointLimitError,
     LimitError,
+    PositionUnknown,
     RobotFileError,
     UnknownRobot,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "JointLimitError",
     "JointLimits",
     "LimitError",
+    "PositionUnknown",
     "RangeSensor",
     "Robot",
     "RobotFileError",

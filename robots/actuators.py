@@ -164,6 +164,11 @@ class ActuatorMap:
         """Actuator angles [rad] of joint vector(s) ``q``: shape (n,) -> (k,), (m, n) -> (m, k)."""
         return np.asarray(q, dtype=float) @ self.M.T + self.b
 
+    def command_values(self, q: FloatArray) -> FloatArray:
+        """Commands (pulse [us] or micro-steps) for joint vector(s) ``q``, unrounded and unchecked:
+        where a controller that interpolates between commands is at a point between them."""
+        return self.angles(q) * self._gain + self._bias
+
     def commands(self, q: FloatArray) -> IntArray:
         """Integer commands (pulse [us] or micro-steps) for joint vector(s) ``q``.
 

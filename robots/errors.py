@@ -139,3 +139,10 @@ class ActuatorMapError(ArmdError):
     """Actuator readings that no joint vector explains (a mirrored pair that disagrees)."""
 
     code = "bad_request"
+
+
+class PositionUnknown(ArmdError):
+    """The controller does not know where the arm is (GRBL after a reset, before homing or an
+    operator's confirmation): nothing may move it until it does."""
+
+    code = "position_unknown"

@@ -17,7 +17,7 @@ from typing import Any
 
 import planning
 import solvers
-from robots import BadRequest, Robot
+from robots import BadRequest, PositionUnknown, Robot
 
 from .deadline import Deadline
 from .protocol import PROTOCOL_VERSION, Limits, NoAdapter, allowed, flag, number
@@ -29,9 +29,11 @@ AdapterCount = Callable[[Robot], int]
 
 class Handlers:
     def __init__(self, arms: Mapping[str, Robot], book: StateBook, limits: Limits,
-                 publish: Publish, adapters: AdapterCount, publish_gripper: Publish | None = None) -> None:
+                 publish: Publish, adapters: AdapterCount, publish_gripper: Publish | None = None,
+                 publish_estop: Publish | None = None) -> None:
         self.arms = dict(arms)
         self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
+        self.publish_estop: Publish = publish_estop or (lambda arm, msg: None)
         self.book = book
         self.limits = limits
         self.publish = publish
@@ -49,7 +51,8 @@ class Handlers:
         known = self.book.current(arm)
         out = arm.describe()
         out.update({"protocol": PROTOCOL_VERSION, "adapters": self.adapters(arm),
-                    "state": {"source": known.source, "moving": known.moving, **known.state.to_dict()}})
+                    "state": {"source": known.source, "moving": known.moving, "homed": known.homed,
+                              **known.state.to_dict()}})
         return out
 
     def fk(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
@@ -95,6 +98,10 @@ class Handlers:
         traj = self._plan(arm, req, known.state, deadline)  # a bad request is told so, adapter or not
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
+        if not known.homed:
+            raise PositionUnknown(f"{arm.name}'s adapter does not know where the arm is (its controller lost the "
+                                  "position): home it or confirm its rest pose with `armd unlock` first",
+                                  robot=arm.name)
         msg = self._message(arm, traj, "move")
         goal = req["goal"]
         if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
@@ -106,14 +113,16 @@ class Handlers:
                 "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(), "start_source": known.source}
 
     def stop(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        """Never refused for lateness: a stop is published however long it waited."""
+        """Never refused: not for lateness, not for a state outside the limits. The stop goes
+        out on ``estop`` first, and every adapter brakes from its own state; the reply's
+        duration and rest pose are the service's estimate from what it knows of the arm."""
         allowed(req)
+        ident = uuid.uuid4().hex
+        self.publish_estop(arm, {"id": ident, "by": "service"})
         known = self.book.current(arm)
-        traj = planning.plan_stop(arm, known.state)
-        msg = self._message(arm, traj, "stop")
-        self.publish(arm, msg)
+        traj = planning.plan_stop(arm, known.state, clamp=True)
         self.book.commanded(arm.name, traj)
-        return {"id": msg["id"], "duration": traj.duration, "adapters": self.adapters(arm),
+        return {"id": ident, "duration": traj.duration, "adapters": self.adapters(arm),
                 "rest": traj.position[-1].tolist()}
 
     def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:

@@ -4,7 +4,8 @@ adapters' state and liveliness followed.
 Key expressions (``prefix`` = ``armd`` by default):
 
 - ``<prefix>/robots``, ``<prefix>/<robot>/{info,fk,ik,plan,move,stop,gripper}``: queryables (JSON in, JSON out);
-- ``<prefix>/<robot>/trajectory``: what ``move`` and ``stop`` publish, for the adapters;
+- ``<prefix>/<robot>/trajectory``: what ``move`` publishes, for the adapters;
+- ``<prefix>/<robot>/estop``: what ``stop`` puts: every adapter brakes from its own state;
 - ``<prefix>/<robot>/gripper``: what ``gripper`` publishes, for the adapters;
 - ``<prefix>/<robot>/state``: adapters' reports, followed to plan from where the arm is;
 - ``<prefix>/<robot>/adapter/<id>``: adapters' liveliness tokens (``move`` needs one);
@@ -70,7 +71,7 @@ class Service:
         self._adapters: dict[str, set[str]] = {name: set() for name in self.arms}
         self._lock = threading.Lock()
         self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
-                                 self._publish_gripper)
+                                 self._publish_gripper, self._publish_estop)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         # trajectories are never dropped under congestion (the default drops bursts)
@@ -222,6 +223,10 @@ class Service:
     def _publish(self, arm: Robot, message: dict[str, Any]) -> None:
         self._publishers[arm.name].put(encode(message))
 
+    def _publish_estop(self, arm: Robot, message: dict[str, Any]) -> None:
+        self.session.put(f"{self.prefix}/{arm.name}/estop", encode(message), encoding=JSON,
+                         congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME)
+
     def _publish_gripper(self, arm: Robot, message: dict[str, Any]) -> None:
         self.session.put(f"{self.prefix}/{arm.name}/gripper", encode(message), encoding=JSON,
                          congestion_control=zenoh.CongestionControl.BLOCK)
@@ -259,7 +264,8 @@ class Service:
         except (ValueError, KeyError, TypeError) as e:
             log.warning("ignoring a malformed state of %s: %s", robot, e)
             return
-        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)))
+        homed = msg.get("homed", True) is not False
+        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)), homed)
 
     # -- life ------------------------------------------------------------------------------
 

@@ -20,6 +20,7 @@ class Known:
     state: JointState
     source: str  # "adapter", "commanded" or "neutral"
     moving: bool
+    homed: bool = True  # False: the adapter says the controller does not know where the arm is
 
 
 class StateBook:
@@ -27,16 +28,16 @@ class StateBook:
 
     def __init__(self, clock: object = time.monotonic) -> None:
         self._lock = threading.Lock()
-        self._reported: dict[str, tuple[float, JointState, bool]] = {}
+        self._reported: dict[str, tuple[float, JointState, bool, bool]] = {}
         self._commanded: dict[str, tuple[float, Trajectory]] = {}
         self._clock = clock
 
     def now(self) -> float:
         return float(self._clock())  # type: ignore[operator]
 
-    def report(self, robot: str, state: JointState, moving: bool) -> None:
+    def report(self, robot: str, state: JointState, moving: bool, homed: bool = True) -> None:
         with self._lock:
-            self._reported[robot] = (self.now(), state, moving)
+            self._reported[robot] = (self.now(), state, moving, homed)
 
     def commanded(self, robot: str, traj: Trajectory) -> None:
         with self._lock:
@@ -48,7 +49,7 @@ class StateBook:
             rep = self._reported.get(robot.name)
             cmd = self._commanded.get(robot.name)
         if rep is not None and now - rep[0] <= STALE_AFTER:
-            return Known(rep[1], "adapter", rep[2])
+            return Known(rep[1], "adapter", rep[2], rep[3])
         if cmd is not None:
             t0, traj = cmd
             elapsed = now - t0

@@ -105,3 +105,9 @@ def collect(client: object, key: str) -> tuple[list[dict[str, object]], object]:
     return got, client.session.declare_subscriber(key, on)  # type: ignore[attr-defined]
 
 
+
+
+@pytest.fixture(autouse=True)
+def _adapter_state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Adapters keep what must outlive them (the SSC-32's last pose) in a test's own folder."""
+    monkeypatch.setenv("ARMD_STATE_DIR", str(tmp_path / "armd-state"))

@@ -26,7 +26,7 @@ def ssc32_joints(arm: robots.Robot, emu: SSC32Emulator) -> np.ndarray:
 def test_ssc32_move_end_to_end(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
     arm = robots.load("insomniac")
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.2)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             states, sub = collect(client, "armd/insomniac/state")
@@ -51,7 +51,7 @@ def test_ssc32_move_end_to_end(client: ArmClient, service: object, adapter_sessi
 def test_ssc32_controller_stops_answering(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
     arm = robots.load("sg5ut")
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1, check_period=0.2)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, timeout=0.3)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             events, sub = collect(client, "armd/sg5ut/events")
@@ -72,7 +72,7 @@ def test_a_trajectory_with_one_bad_sample_is_rejected_whole(client: ArmClient, s
                                                             adapter_session: zenoh.Session) -> None:
     arm = robots.load("insomniac")
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             traj = client.plan("insomniac", [0.3, 1.2, -1.0, -0.5, 0.0], start=arm.neutral)
@@ -96,7 +96,7 @@ def test_a_trajectory_with_one_bad_sample_is_rejected_whole(client: ArmClient, s
 def test_stop_mid_move_halts(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
     arm = robots.load("insomniac")
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             goal = np.array([1.2, 2.0, -1.8, 1.0, 1.0])
@@ -125,7 +125,7 @@ def test_adapter_killed_mid_move_then_no_adapter(client: ArmClient, service: obj
     arm = robots.load("sg5ut")
     session = zenoh.open(network_config(connect=[router]))
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(session, arm, emu.port, home_time=0.1)
+        adapter = SSC32Adapter(session, arm, emu.port)
         wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
         client.move("sg5ut", [0.6, 1.0, -0.3, -0.4], speed=0.3)
         time.sleep(0.2)
@@ -144,7 +144,7 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, ser
                                                           adapter_session: zenoh.Session) -> None:
     arm = robots.load("sg5ut")
     with SSC32Emulator() as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port, home_time=0.1)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             goal = np.array([0.3, 1.1, -0.5, -0.4])

@@ -37,6 +37,7 @@ class Served:
     session: zenoh.Session
     prefix: str
     published: list[dict[str, Any]] = field(default_factory=list)
+    stops: list[dict[str, Any]] = field(default_factory=list)  # what the service put on estop
 
     def ask(self, verb: str, req: dict[str, Any] | bytes, timeout: float = 30.0,
             arm: str = ARM) -> tuple[str, dict[str, Any]]:
@@ -54,7 +55,7 @@ class Served:
 @pytest.fixture(scope="module")
 def served(router: str) -> Iterator[Any]:
     """make(prefix, limits, workers): a service on the module's router; all closed at the end."""
-    opened: list[tuple[zenoh.Session, Service, SimAdapter, Any]] = []
+    opened: list[tuple[zenoh.Session, Service, SimAdapter, list[Any]]] = []
 
     def make(prefix: str, limits: Limits, workers: int = 4) -> Served:
         arm = robots.load(ARM)
@@ -67,16 +68,19 @@ def served(router: str) -> Iterator[Any]:
 
         def on(sample: zenoh.Sample) -> None:
             with lock:
-                s.published.append(json.loads(sample.payload.to_bytes()))
+                into = s.stops if str(sample.key_expr).endswith("/estop") else s.published
+                into.append(json.loads(sample.payload.to_bytes()))
 
         sub = session.declare_subscriber(f"{prefix}/{ARM}/trajectory", on)
-        opened.append((session, service, sim, sub))
+        estops = session.declare_subscriber(f"{prefix}/{ARM}/estop", on)
+        opened.append((session, service, sim, [sub, estops]))
         wait_for(lambda: service._adapter_count(arm) == 1, what="the simulated arm")
         return s
 
     yield make
-    for session, service, sim, sub in opened:
-        sub.undeclare()
+    for session, service, sim, subs in opened:
+        for sub in subs:
+            sub.undeclare()
         sim.close()
         service.close()
         session.close()
@@ -184,11 +188,11 @@ def test_arm_client_sends_its_deadline(router: str, tight: Served) -> None:
 
 
 def test_stop_is_never_refused_for_lateness(tight: Served) -> None:
-    before = len(tight.published)
+    before = len(tight.stops)
     kind, r = tight.ask("stop", {"deadline": 1e-9})
     assert kind == "ok", r
-    wait_for(lambda: len(tight.published) > before, what="the stop trajectory")
-    assert tight.published[-1]["kind"] == "stop" and tight.published[-1]["id"] == r["id"]
+    wait_for(lambda: len(tight.stops) > before, what="the estop")
+    assert tight.stops[-1]["id"] == r["id"]
 
 
 def test_work_that_overruns_its_deadline_is_abandoned(slow: Served) -> None:
@@ -238,11 +242,11 @@ def test_stop_does_not_wait_behind_the_queue(slow: Served) -> None:
     wait_for(lambda: slow.service.stats()["in_flight"] >= 1, what="the batch to arrive")
     queued = [slow.session.get(f"{slow.prefix}/{ARM}/fk", payload=b'{"q": [0, 1, -1]}', timeout=30.0)
               for _ in range(3)]
-    before = len(slow.published)
+    before = len(slow.stops)
     kind, r = slow.ask("stop", {})
     assert kind == "ok", r
     assert busy.try_recv() is None  # the batch has not been answered yet: the stop did not wait for it
-    wait_for(lambda: len(slow.published) > before, what="the stop trajectory")
-    assert slow.published[-1]["kind"] == "stop"
+    wait_for(lambda: len(slow.stops) > before, what="the estop")
+    assert slow.stops[-1]["id"] == r["id"]
     assert len(list(busy)) == 1 and all(len(list(q)) == 1 for q in queued)
     wait_for(lambda: slow.service.stats()["in_flight"] == 0, what="an idle service")
