@@ -495,3 +495,197 @@ def test_run_as_a_program_until_ctrl_c() -> None:
     finally:
         proc.kill()
         proc.wait()
+
+
+# -- work coordinates, the Arduino's reset, homing ------------------------------------------------
+
+
+def report_lines(ser: serial.Serial, line: str) -> dict[str, str]:
+    """``$#``'s lines as {"G54": "10.000,5.000,0.000", ...}."""
+    out = command(ser, line)
+    assert out[-1] == "ok"
+    return dict(s[1:-1].split(":", 1) for s in out[:-1])
+
+
+def test_g10_l2_offsets_give_wpos_and_wco(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "$10=0") == ["ok"]  # WPos
+    status(ser)  # the first report carries WCO; the next ones not, until an offset changes
+    assert "WCO" not in status(ser)
+    assert command(ser, "G10 L2 P1 X10 Y5") == ["ok"]
+    report = status(ser)
+    assert report["WPos"] == "-10.000,-5.000,0.000" and report["WCO"] == "10.000,5.000,0.000"
+    assert command(ser, "G0 X0 Y0") == ["ok"]  # work zero: machine (10, 5)
+    clock.now += 10.0
+    assert status(ser)["WPos"] == "0.000,0.000,0.000"
+    assert emu.position() == {"X": 10.0, "Y": 5.0, "Z": 0.0} and emu.work_offset()["X"] == 10.0
+    params = report_lines(ser, "$#")
+    assert list(params) == ["G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92", "TLO", "PRB"]
+    assert params["G54"] == "10.000,5.000,0.000" and params["G55"] == "0.000,0.000,0.000"
+    assert params["TLO"] == "0.000" and params["PRB"] == "0.000,0.000,0.000:0"
+    assert command(ser, "G10 L20 P2 X1") == ["ok"]  # G55 such that here (machine X 10) reads X 1
+    assert report_lines(ser, "$#")["G55"] == "9.000,0.000,0.000"
+    assert command(ser, "G55") == ["ok"]
+    assert status(ser)["WCO"] == "9.000,0.000,0.000"
+    assert command(ser, "G53 G0 X0") == ["ok"]  # machine coordinates, this block only
+    clock.now += 10.0
+    assert emu.position()["X"] == 0.0
+    assert command(ser, "$G")[0].startswith("[GC:G0 G55 ")
+    for line, code in [("G10 L2 X1", 28), ("G10 L2 P7 X1", 29), ("G10 L3 P1 X1", 20), ("G10 L2 P1", 26),
+                       ("G10 L2 P1 G0 X1", 24), ("G92", 26), ("G10 L2 P1 X1 R2", 36)]:
+        assert command(ser, line) == [f"error:{code}"], line
+
+
+def test_offsets_survive_a_dtr_reset_but_g92_does_not(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, offsets={"G54": {"X": 3.0}})  # a board someone used before
+    assert command(ser, "$10=0") == ["ok"]
+    assert status(ser)["WCO"] == "3.000,0.000,0.000"
+    assert command(ser, "G0 X5") == ["ok"]  # machine X 8
+    clock.now += 10.0
+    assert command(ser, "G92 X0") == ["ok"]  # here reads X 0: G92 = 8 - 3 - 0
+    assert report_lines(ser, "$#")["G92"] == "5.000,0.000,0.000"
+    report = status(ser)
+    assert report["WPos"] == "0.000,0.000,0.000" and report["WCO"] == "8.000,0.000,0.000"
+    ser.write(b"\x18")  # a soft reset: gc_init clears G92, reloads G54
+    assert read_until(ser, WELCOME) == [WELCOME]
+    assert report_lines(ser, "$#")["G92"] == "0.000,0.000,0.000"
+    assert status(ser)["WPos"] == "5.000,0.000,0.000"
+    assert command(ser, "G92 X1") == ["ok"]
+    assert command(ser, "G10 L2 P1 X7") == ["ok"]
+    ser.close()
+    time.sleep(0.05)
+    with serial.Serial(emu.port, 115200, timeout=1) as again:  # the Arduino's reset: EEPROM stays
+        assert read_until(again, WELCOME) == [WELCOME]
+        params = report_lines(again, "$#")
+        assert params["G54"] == "7.000,0.000,0.000" and params["G92"] == "0.000,0.000,0.000"
+        assert command(again, "G92.1") == ["ok"]
+        assert command(again, "$RST=#") == ["[MSG:Restoring defaults]", "ok"]
+        assert read_until(again, WELCOME) == [WELCOME]
+        assert report_lines(again, "$#")["G54"] == "0.000,0.000,0.000"
+
+
+def test_a_dtr_reset_zeroes_grbls_counters_not_the_arm(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, physical_start={"X": 100.0})
+    assert command(ser, "G0 X5 Y-2") == ["ok"]
+    clock.now += 10.0
+    assert emu.physical() == {"X": 105.0, "Y": -2.0, "Z": 0.0}
+    assert emu.steps() == {"X": 1250, "Y": -500, "Z": 0}
+    ser.close()
+    time.sleep(0.05)
+    with serial.Serial(emu.port, 115200, timeout=1) as again:
+        assert read_until(again, WELCOME) == [WELCOME]
+        assert emu.steps() == {"X": 0, "Y": 0, "Z": 0} and mpos(status(again)) == [0.0, 0.0, 0.0]
+        assert emu.physical() == {"X": 105.0, "Y": -2.0, "Z": 0.0}  # the arm did not move
+        assert command(again, "G0 X1") == ["ok"]
+        clock.now += 10.0
+        assert emu.physical()["X"] == 106.0
+
+
+def home(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 0.05) -> list[str]:
+    """Send ``$H`` and run the fake clock until homing ends; return what came back."""
+    ser.write(b"$H\n")
+    wait_for(lambda: emu.state != "Alarm" and emu.state != "Idle")
+    states = set()
+    while (state := emu.state) == "Home":
+        states.add(state)
+        clock.now += step
+        assert clock.now < 1000.0
+    ser.timeout = 0.2
+    out = [raw.decode().strip() for raw in iter(ser.readline, b"") if raw.strip()]
+    ser.timeout = 1
+    return out
+
+
+def test_homing_moves_the_arm_to_its_switches(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={22: 1, 23: 2}, home_switches={"X": 30.0, "Y": -20.0, "Z": 10.0},
+                    physical_start={"X": 0.0, "Y": 0.0, "Z": 0.0})
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"  # homing enabled: GRBL starts locked
+    assert command(ser, "G0 X1") == ["error:9"]
+    start = clock.now
+    ser.write(b"?")  # GRBL's homing loop runs no real-time commands: the report comes after
+    out = home(emu, ser, clock)
+    assert out[0] == "ok" and out[1].startswith("<Idle|")
+    # Z first, then X and Y; X and Z home towards +, Y ($23 bit 1) towards -; $27 = 1 pull-off
+    assert emu.physical() == {"X": 29.0, "Y": -19.0, "Z": 9.0}
+    assert emu.steps() == {"X": -250, "Y": (-200 + 1) * 250, "Z": -250}
+    assert clock.now - start > 30.0 / (500 / 60)  # at least X's approach at the $25 seek rate
+    assert emu.state == "Idle"
+    assert command(ser, "G0 X-2") == ["ok"]
+    clock.now += 10.0
+    assert emu.physical()["X"] == 28.0
+    emu.inject_alarm(1)  # a hard limit: reset, then $H (or $X) unlocks
+    assert read_until(ser, "[MSG:Reset to continue]") == ["ALARM:1", "[MSG:Reset to continue]"]
+    ser.write(b"\x18")
+    assert read_until(ser, "[MSG:'$H'|'$X' to unlock]") == [WELCOME, "[MSG:'$H'|'$X' to unlock]"]
+    assert command(ser, "G0 X1") == ["error:9"]
+    assert home(emu, ser, clock)[0] == "ok"
+    assert emu.physical() == {"X": 29.0, "Y": -19.0, "Z": 9.0} and emu.state == "Idle"
+
+
+def test_homing_without_a_switch_raises_alarm_9(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={22: 1}, home_switches={"X": 5.0, "Y": 5.0})
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"
+    out = home(emu, ser, clock, step=0.5)  # Z searches 1.5 x $132 and finds nothing
+    assert out == ["ALARM:9", "ok", WELCOME, "[MSG:'$H'|'$X' to unlock]"]
+    assert emu.state == "Alarm"
+    assert emu.physical()["Z"] == pytest.approx(1.5 * 200)
+
+
+def test_homing_without_switches_sets_the_homed_position_at_once(grbl: Open) -> None:
+    emu, ser = grbl(settings={22: 1})
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"
+    assert command(ser, "$H") == ["ok"]
+    assert emu.steps() == {"X": -250, "Y": -250, "Z": -250} and emu.physical() == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+
+
+# -- alarms ----------------------------------------------------------------------------------------
+
+
+def test_hard_limit_kills_motion_at_once_and_needs_a_reset_then_unlock(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "G1 X20 F300") == ["ok"]
+    clock.now += 1.0
+    emu.inject_alarm(1)  # at 5 units/s: no deceleration (a real machine may lose steps here)
+    assert read_until(ser, "[MSG:Reset to continue]") == ["ALARM:1", "[MSG:Reset to continue]"]
+    clock.now += 1.0
+    assert emu.position()["X"] == pytest.approx(3.75, abs=0.004) and emu.physical() == emu.position()
+    ser.write(b"G1 X0\n!~")
+    assert status(ser)["state"] == "Alarm"
+    ser.write(b"\x18")  # no ALARM:3: the motion was already killed
+    assert read_until(ser, "[MSG:'$H'|'$X' to unlock]") == [WELCOME, "[MSG:'$H'|'$X' to unlock]"]
+    assert command(ser, "G1 X0") == ["error:9"]
+    assert command(ser, "$X") == ["[MSG:Caution: Unlocked]", "ok"]
+    assert command(ser, "G1 X0") == ["error:22"]  # the reset's gc_init forgot the feed rate
+    assert command(ser, "G1 X0 F300") == ["ok"]
+
+
+def test_soft_limit_stops_under_control_then_alarm_2(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={22: 1, 20: 1})
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"
+    assert command(ser, "$H") == ["ok"]  # no switches modelled: X = -1
+    assert command(ser, "G1 X-30 F300") == ["ok"]
+    clock.now += 1.0  # X = -1 - 3.75, at 5 units/s
+    ser.write(b"G1 X5\n")  # beyond 0: limits_soft_check holds the machine, then alarms
+    assert status(ser)["state"] == "Hold:1"
+    clock.now += 0.6
+    assert read_until(ser, "[MSG:Reset to continue]") == ["ALARM:2", "[MSG:Reset to continue]"]
+    assert emu.position()["X"] == pytest.approx(-1 - 3.75 - 1.25, abs=0.004)  # a controlled stop: v^2 / 2a
+    ser.write(b"\x18")  # the line the parser was in is answered as gc_execute_line returns
+    assert read_until(ser, "[MSG:'$H'|'$X' to unlock]") == ["ok", WELCOME, "[MSG:'$H'|'$X' to unlock]"]
+
+
+def test_status_reports_come_after_status_delay_and_merge(grbl: Open) -> None:
+    _, ser = grbl(status_delay=0.05)
+    start = time.monotonic()
+    ser.write(b"??")
+    assert readline(ser).startswith("<Idle|")
+    assert time.monotonic() - start >= 0.045
+    ser.timeout = 0.1
+    assert readline(ser) == ""  # the second '?' came before the report: one report for both

@@ -695,6 +695,7 @@ class GrblEmulator(PtyEmulator):
             self._sync_positions()
             return 0
         self._homing = _Homing(deque(cycles))
+        self._alarm = False  # STATE_HOMING
         self._homing_next_cycle()
         return None  # answered when homing ends
 
