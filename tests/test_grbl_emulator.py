@@ -665,6 +665,20 @@ def test_hard_limit_kills_motion_at_once_and_needs_a_reset_then_unlock(grbl: Ope
     assert command(ser, "G1 X0 F300") == ["ok"]
 
 
+def test_a_switch_pressed_with_hard_limits_on_raises_alarm_1(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={21: 1}, home_switches={"X": 10.0})
+    assert command(ser, "G1 X20 F300") == ["ok"]
+    start = clock.now
+    clock.now = start + 2.2  # X reaches 10 at 0.5 + 8.75 / 5 = 2.25 s
+    assert emu.state == "Run"
+    clock.now = start + 2.3
+    assert read_until(ser, "[MSG:Reset to continue]") == ["ALARM:1", "[MSG:Reset to continue]"]
+    assert emu.physical()["X"] == pytest.approx(10.0, abs=0.004)  # killed on the switch, at speed
+    clock.now += 1.0
+    assert emu.physical()["X"] == pytest.approx(10.0, abs=0.004) and emu.state == "Alarm"
+
+
 def test_soft_limit_stops_under_control_then_alarm_2(grbl: Open) -> None:
     clock = FakeClock()
     emu, ser = grbl(clock=clock, settings={22: 1, 20: 1})

@@ -471,7 +471,7 @@ class GrblEmulator(PtyEmulator):
         b.millimeters = stop
         if stop > end:
             self._v = v + acc * t
-            self._homing_tripped()
+            self._tripped()
             return t
         self._v = v_end
         if p.ramp == _ACCEL:
@@ -642,6 +642,12 @@ class GrblEmulator(PtyEmulator):
         b.max_entry_speed_sqr = min(nominal, self._prev_nominal) ** 2
         b.max_entry_speed_sqr = min(b.max_entry_speed_sqr, b.max_junction_speed_sqr)
         self._prev_nominal, self._prev_unit, self._pl_position = nominal, unit, list(target)
+        if self.settings[21] and self.home_switches:  # hard limits: where the block would press a switch
+            for i in range(len(unit)):
+                switch = self._switch_steps(i)
+                if switch is not None and not self._pressed(i, start[i]) and self._pressed(i, target[i]):
+                    trip = (switch - start[i]) / (target[i] - start[i]) * length
+                    b.stop_rem = max(b.stop_rem, length - trip)
         self._blocks.append(b)
         self._recalculate()
         return b
@@ -771,8 +777,13 @@ class GrblEmulator(PtyEmulator):
         negative = bool(int(self.settings[23]) >> i & 1)
         return steps <= switch if negative else steps >= switch
 
-    def _homing_tripped(self) -> None:
-        """Every axis of the approach found its switch: st_reset kills the move at once."""
+    def _tripped(self) -> None:
+        """A switch is pressed: the hard-limit ISR kills motion at once (ALARM:1); or every axis of a
+        homing approach found its switch, and st_reset kills the move at once."""
+        if self._homing is None:
+            self._abort_motion(keep_parser=True)
+            self._critical_alarm(1)
+            return
         self._steps_done = self._steps_now()
         self._blocks.clear()
         self._prof, self._recalc, self._v = None, False, 0.0
