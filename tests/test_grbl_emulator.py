@@ -533,7 +533,8 @@ def test_g10_l2_offsets_give_wpos_and_wco(grbl: Open) -> None:
     assert emu.position()["X"] == 0.0
     assert command(ser, "$G")[0].startswith("[GC:G0 G55 ")
     for line, code in [("G10 L2 X1", 28), ("G10 L2 P7 X1", 29), ("G10 L3 P1 X1", 20), ("G10 L2 P1", 26),
-                       ("G10 L2 P1 G0 X1", 24), ("G92", 26), ("G10 L2 P1 X1 R2", 36)]:
+                       ("G10 L2 P1 G0 X1", 24), ("G92", 26), ("G10 L2 P1 X1 R2", 20),
+                       ("G10 L20 P1 X1 R2", 36)]:
         assert command(ser, line) == [f"error:{code}"], line
 
 

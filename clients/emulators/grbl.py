@@ -1,60 +1,123 @@
-"""An emulator of a GRBL 1.1 controller (an Arduino driving stepper motors), for tests: not firmware.
+"""An emulator of a GRBL 1.1h controller (an Arduino driving stepper motors), for tests: not firmware.
 
 It speaks GRBL 1.1's serial protocol on a pseudo-terminal, so that an adapter opens
 ``serial.Serial(emulator.port, 115200, timeout=...)`` exactly as it opens ``/dev/ttyACM0``, and
 it records what it received (``lines``, ``overflows``, ``max_rx_used``) for tests to check. Run
 one by hand with ``python -m clients.emulators.grbl``: it prints the port and serves until Ctrl-C.
-Units are GRBL's "mm": for armd, degrees of the actuator. Times are in seconds.
+Units are GRBL's "mm": for armd, degrees of the actuator. Times are in seconds. It is written
+from GRBL's source (gnea/grbl, grbl/*.c) and its doc/markdown; the file each behaviour follows
+is named below.
 
-Covered (gnea/grbl wiki: "Grbl v1.1 Interface", "Commands", "Configuration"):
+Covered:
 
-- Opening the port resets the Arduino (its DTR auto-reset): machine position 0, and after a short
-  boot (bytes sent meanwhile are lost) the welcome ``\\r\\nGrbl 1.1h ['$' for help]\\r\\n``.
+- Motion (planner.c, stepper.c). A 15-block planner (BLOCK_BUFFER_SIZE 16, one kept empty; the
+  running block is one of them). Each G0/G1 block: targets rounded to whole steps (``lround``),
+  length from the rounded steps; nominal speed the programmed rate (G0: the rapid rate) capped by
+  ``$110``.. along the unit vector (limit_value_by_axis_maximum), at least 1 mm/min; acceleration
+  ``$120``.. likewise; the junction's max speed from junction deviation ``$11`` exactly as
+  plan_buffer_line computes it (junction_cos_theta, the half-angle sine, the junction's own
+  acceleration limit, 0 for a reversal, unlimited straight on, 0 when the planner was empty),
+  then capped by the smaller nominal speed of the two blocks. planner_recalculate's reverse pass
+  (the newest block always planned to a stop) and forward pass, with GRBL's planned pointer.
+  The running block runs st_prep_buffer's profiles (acceleration, cruise, deceleration;
+  triangle, trapezoid, deceleration- or acceleration-only) computed from what is left of it
+  (pl_block->millimeters) and its speed now, and is re-profiled when the planner changes its
+  exit speed (st_update_plan_block_parameters). Hence a host streaming short blocks moves
+  slower than it asked: within 15 blocks the machine must always be able to stop. The motion
+  is integrated exactly in time from ``clock`` (no step timing): ``steps()`` (GRBL's
+  sys_position) is whole steps along the block. A cycle starts when the receive buffer runs dry,
+  the planner is full, or a command waits for it to empty (protocol_auto_cycle_start).
+- ``!`` feed hold (protocol.c, stepper.c): the running block's profile is replaced by a
+  deceleration to zero at its acceleration, continuing into the next blocks at theirs (a block
+  loaded mid-hold enters at the speed reached); ``Hold:1``, then ``Hold:0`` where it stopped, never
+  going back. In ``Hold:0`` GRBL's main loop is suspended: no line is read or answered until ``~``.
+  ``~`` resumes from rest (plan_cycle_reinitialize), and is ignored during ``Hold:1``. A hold when
+  idle is ``Hold:0`` at once.
+- Two positions: GRBL's counters (``steps()``, ``position()``, the reports' MPos) and the arm's
+  ``physical()`` position, relative to its own zero (``physical_start``). Opening the port resets
+  the Arduino (its DTR auto-reset, main.c): the counters restart at 0 where the arm stands, and
+  after a short boot (bytes sent meanwhile are lost) the welcome
+  ``\\r\\nGrbl 1.1h ['$' for help]\\r\\n``. With ``$22=1`` GRBL starts in Alarm after any reset
+  (HOMING_INIT_LOCK): ``[MSG:'$H'|'$X' to unlock]``.
+- Homing ``$H`` (limits.c, motion_control.c, system.c): error 5 unless ``$22=1``. With
+  ``home_switches`` (physical, per axis), it runs in machine time, state ``Home``: the cycles of
+  ``homing_cycles`` (config.h: Z, then X and Y together), each a search at ``$25`` (times sqrt of
+  the axes moving together) over 1.5 x ``$13x``, pull-off ``$27`` at ``$25``, a locating
+  approach at ``$24`` over 10 x ``$27``, pull-off again, ``$26`` ms of debounce between, towards
+  ``+`` or, for the axes in ``$23``, ``-``; each axis stops on its switch, the move ends when all
+  have. Then GRBL's position is ``-$27`` (``-$13x + $27`` for ``$23`` axes), axes outside the cycles
+  untouched, and the arm stands ``$27`` off its switches. A missing switch: ``ALARM:9``; a switch
+  still pressed after the pull-off: ``ALARM:8``; a reset during homing: ``ALARM:6``; then GRBL's own
+  reset (welcome, Alarm). Status reports wait until homing ends (its loop runs no real-time
+  commands). Without ``home_switches``, ``$H`` sets that position at once and nothing moves.
+- Work coordinates (gcode.c, settings.c, report.c): G54-G59 selection, ``G10 L2 Pn`` and
+  ``G10 L20 Pn`` (P0 the active system; errors 20, 24, 26, 28, 29), ``G92``, ``G92.1``, ``G53``;
+  the coordinate data are EEPROM (``coords``, ``offsets`` to start with some, kept across resets
+  and DTR resets, cleared by ``$RST=#`` or ``$RST=*``), G92 is cleared by every reset (gc_init
+  memsets the parser state, then reloads G54). These commands wait for the planner to empty
+  (FORCE_BUFFER_SYNC_DURING_WCO_CHANGE, _EEPROM_WRITE), as do ``G4`` and spindle/coolant changes
+  outside laser mode. ``$#`` prints ``[G54:..]``..``[G59:..]``, ``[G28:..]``, ``[G30:..]``,
+  ``[G92:..]``, ``[TLO:0.000]``, ``[PRB:0.000,..:0]``; ``$G`` shows the active system.
+- Status reports (report.c): ``<Idle|MPos:...|FS:...>`` with ``$10`` bit 0 MPos, else WPos =
+  MPos - WCO (WCO = the active G54-G59 data + G92); bit 1 ``Bf:`` (planner blocks free, receive
+  bytes free); ``FS:`` the current speed; ``WCO:`` in the first report, every 10th idle or 30th
+  busy one, and the next after an offset changes; ``Ov:`` every 10th/20th, the one after a WCO.
+  A ``?`` is answered ``status_delay`` later (GRBL's next main-loop pass); a ``?`` arriving before
+  that report is merged into it, as GRBL's report flag does.
+- Alarms (limits.c, protocol.c, motion_control.c): a hard limit (``inject_alarm(1)``, or, with
+  ``$21=1`` and ``home_switches``, a move pressing a switch, cut at that step) kills motion at once,
+  no deceleration: a real machine may lose steps there and its position then be wrong (here both
+  positions stay consistent). A soft limit (``inject_alarm(2)``, or with ``$20=1`` a target
+  outside ``[-$13x, 0]``) first stops under control like a feed hold, so no position is lost. Both
+  then print ``ALARM:n`` and ``[MSG:Reset to continue]``, read no line until a reset (real-time
+  ``?`` still answered), and after it stay in Alarm until ``$X`` or ``$H``; G-code is ``error:9`` in
+  Alarm. A reset while moving is ``ALARM:3``, not when stopped (Idle, ``Hold:0``): the position is
+  kept. A line the parser was inside of at a reset is answered ``ok`` (gc_execute_line returns).
 - Lines end with ``\\n`` or ``\\r``, each of which ends a line: ``\\r\\n`` is a line and an empty
   line, answered ``ok`` twice, as GRBL does. Spaces, ``(...)`` and ``;`` comments are dropped and
   letters upcased; a line longer than 79 characters is ``error:11``. Every line is answered once,
-  ``ok`` or ``error:N``, when the parser has taken it: a motion once it is in the planner (of
-  ``planner_blocks`` blocks, the running one included), not when it is done. With the planner
-  full the parser waits, and the bytes behind it wait in the ``rx_buffer``-byte receive buffer;
-  bytes arriving when that is full are lost (counted in ``overflows``), as on the Arduino. Hence
-  character counting: a host whose unanswered lines never exceed 128 bytes never loses any.
-- G-code: ``G0`` (at the axes' max rates), ``G1 ... F`` (units/min, capped by the max rates, as
-  GRBL caps the rate along the move's direction), ``G4 P<s>`` (waits for the planner to empty,
-  then dwells, then answers), ``G90``/``G91``, ``G20``/``G21``, ``G53``, ``N``, ``M3``/``M4``/``M5`` with
-  ``S`` and ``M8``/``M9`` (which, outside laser mode, also wait for the planner to empty, like GRBL),
-  and the no-op modes ``G17``-``G19``, ``G40``, ``G49``, ``G54``-``G59`` (all offsets zero), ``G61``,
-  ``G80``, ``G94`` (``M7`` is ``error:20``, as in GRBL's default build). Errors: 1, 2, 4, 9, 11, 20-23,
-  25, 27, 28, 30, 31, 36, 38, as GRBL numbers them.
-- ``$`` help, ``$$`` (every setting, ``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8,
-  10, 12), ``$X`` (``[MSG:Caution: Unlocked]``), ``$G``, ``$I``, ``$H`` (``error:5`` unless ``$22=1``).
-- Real-time bytes, taken out of the stream wherever they come: ``?`` a status report
-  (``<Idle|MPos:0.000,0.000,0.000|FS:0,0>``, ``Bf:`` with ``$10=2`` or 3, ``WPos:`` with ``$10=0``,
-  ``WCO:`` and ``Ov:`` at GRBL's intervals), ``!`` feed hold (decelerates at ``$12x``: ``Hold:1``,
-  then ``Hold:0``), ``~`` resume (ignored during ``Hold:1``, as GRBL does), ``0x18`` soft reset (empties
-  the buffers, keeps the position, prints the welcome; in motion or ``Hold:1``, not ``Hold:0``, it
-  first raises ``ALARM:3`` and stays in Alarm until ``$X``). Bytes 0x80-0xFF (overrides) are dropped.
-- Machine position is kept in whole steps, as GRBL does: each target is rounded to steps with
-  ``$10x``, and ``position()`` is ``steps() / $10x``.
-- Test hooks: ``inject_alarm(code)`` (motion stops, the planner is emptied, ``ALARM:<code>``, a line
-  waiting for planner room is answered ``error:9``; for 1 and 2, hard and soft limits, also
-  ``[MSG:Reset to continue]`` and nothing is read, nor answered, until a reset),
-  ``inject_error_on_next_line(code)``, and ``responding = False`` (silent: reads and drops all).
+  ``ok`` or ``error:N``, when the parser has taken it: a motion once it is in the planner, not
+  when it is done. With the planner full the parser waits, and the bytes behind it wait in the
+  ``rx_buffer``-byte receive buffer; bytes arriving when that is full are lost (``overflows``), as
+  on the Arduino. Hence character counting: a host whose unanswered lines never exceed 128 bytes
+  never loses any.
+- G-code (gcode.c): ``G0``, ``G1 ... F`` (units/min), ``G4 P<s>``, ``G10``, ``G53``, ``G54``-``G59``,
+  ``G90``/``G91``, ``G91.1``, ``G92``/``G92.1``, ``G20``/``G21``, ``N``, ``M3``/``M4``/``M5`` with ``S``,
+  ``M8``/``M9``, and the no-op modes ``G17``-``G19``, ``G40``, ``G49``, ``G61``, ``G80``, ``G94`` (``M7``
+  is ``error:20``, as in GRBL's default build). Errors 1, 2, 4, 9, 11, 20-31, 36, 38 as GRBL
+  numbers and orders them (``G0 G1`` is 24, as gc_execute_line finds the axis conflict first).
+- ``$`` help, ``$$`` (``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8, 10, 12;
+  ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
+  GRBL resets itself). ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped.
+- For tests: ``trace`` (clock time, physical position per axis) at every pass of the machine
+  model while moving (the thread's 2 ms poll, and every query) and at each block's end, cleared
+  by ``clear_trace()``; ``inject_alarm(code)`` (other codes: motion stops, the planner empties, a
+  waiting line is ``error:9``), ``inject_error_on_next_line(code)``, and ``responding = False``
+  (silent: reads and drops all); ``settings`` to start with (``{22: 1}``).
 
 Where real GRBL differs, or may:
 
-- No acceleration planning: each block runs at its constant rate from the start, corners are
-  taken at full speed, and a resume restarts at full speed; only a feed hold decelerates. A real
-  move takes longer, by about ``v / (2 a)`` per start and per stop (v [units/s], a = ``$12x``).
-  Neither is the real step timing emulated: steps are interpolated linearly along each block.
-- Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G10``, ``G28``/``G30``,
-  ``G38.x`` probing, ``G43.1``, ``G92``, ``G93``, ``G91.1``, ``M0``/``M1``/``M2``/``M30``, jogging
-  ``$J=``, ``$#``, ``$N``, ``$C``, ``$RST=``, ``$SLP``, ``$I=``. No overrides, limit switches, soft limits,
-  probe, door or spindle; ``$13`` (inches) does not change reports. ``$H`` homes at once, without moving.
-- GRBL answers a status request within 5-20 ms and drops a ``?`` that comes before the previous
-  report; here each ``?`` is answered at once. A real reset also loses bytes arriving during it.
+- Timing: GRBL cuts its profiles into 10 ms segments of constant step rate (DT_SEGMENT, AMASS)
+  and prepares up to 5 of them ahead, so a planner change or a hold takes effect up to ~50 ms
+  late there, and its planner already counts the prepared distance as done; here every change
+  takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
+  in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
+- Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G28``/``G30``
+  (their ``$#`` slots are kept) and ``G28.1``/``G30.1``, ``G38.x`` probing, ``G43.1``, ``G93``,
+  ``M0``/``M1``/``M2``/``M30``, jogging ``$J=``, ``$N``, ``$C``, ``$SLP``, ``$I=``; overrides, the
+  safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; the limit
+  pins (``Pn:``) are not reported. ``$RST=$`` restores this emulator's defaults.
+- Hard limits: GRBL's pin-change interrupt fires on any change, a switch released as well as
+  pressed; here only a move onto a switch trips, and only with ``home_switches``. Homing's
+  switches trip exactly at their step (no switch travel, no bounce, no dual axes).
+- ``!`` or ``~`` during homing are dropped (GRBL acts on them once homing ends). A real reset
+  also loses bytes arriving during it, and the ``?`` latency varies with the main loop's load.
 - A real alarm is often accompanied by a reset (hard limit, homing failures) that prints the
   welcome; ``inject_alarm`` does not (reset yourself, as a host must anyway after 1 and 2).
-- The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them.
+- ``physical()`` uses the current ``$10x``: changing steps/unit rescales it, where a real arm's
+  gearing would not change.
+- The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them, and the
+  parser takes a line faster than GRBL's few milliseconds.
 - Linux pseudo-terminals: the port's open and close are seen as the master's hang-up clearing and
   setting, polled every 2 ms; a close and reopen quicker than that goes unseen (no reset, no welcome).
 """
@@ -1246,9 +1309,6 @@ class GrblEmulator(PtyEmulator):
             return 27
         if words.get("T", 0.0) > 255:
             return 38
-        used = {"P"} if non_modal == 4 else {"P", "L"} if non_modal == 10 else set()
-        if any(w in words for w in "IJKLRP" if w not in used):
-            return 36
         mod = self._modal
         inches = {20: True, 21: False}.get(groups.get("units", -1), mod.inches)
         scale = 25.4 if inches else 1.0
@@ -1271,7 +1331,7 @@ class GrblEmulator(PtyEmulator):
             p = int(words["P"])
             if p > 6:
                 return 29
-            if int(words["L"]) not in (2, 20):
+            if int(words["L"]) not in (2, 20) or (int(words["L"]) == 2 and "R" in words):
                 return 20
             slot = p - 1 if p > 0 else coord_select
             data = list(self.coords[slot])
@@ -1291,6 +1351,9 @@ class GrblEmulator(PtyEmulator):
         moving = axis_command == "motion" and motion in (0, 1) and bool(axis)
         if axis_command == "motion" and motion == 1 and feed == 0.0:
             return 22
+        used = {"P"} if non_modal == 4 else {"P", "L"} if non_modal == 10 else set()
+        if any(w in words for w in "IJKLRP" if w not in used):
+            return 36  # the last of gc_execute_line's checks: value words no command used
         speed = words.get("S")
         spindle, coolant = groups.get("spindle", mod.spindle), groups.get("coolant", mod.coolant)
         sync = non_modal in (4, 10, 92, 921) or coord_select != mod.coord_select
