@@ -195,7 +195,7 @@ def test_each_axis_keeps_within_its_max_rate_and_acceleration(grbl: Open) -> Non
     assert status(ser)["FS"] == f"{500 / (10 / math.hypot(10, 5)):.0f},0"  # 559: X at its 500 units/min
     advance(emu, clock, 1.5, 0.1)
     assert emu.state == "Idle" and emu.position() == {"X": 10.0, "Y": 5.0, "Z": 0.0}
-    trace = list(emu.trace)
+    trace = emu.trace
     ax, ay = accelerations(trace, 0, 0.199), accelerations(trace, 1, 0.199)
     assert max(abs(a) for a in ax) <= 10.0 + 0.3  # $120, and a sampling tolerance (a step is 0.004)
     assert max(abs(a) for a in ax) >= 9.5  # it does use it

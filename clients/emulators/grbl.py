@@ -308,7 +308,7 @@ class GrblEmulator(PtyEmulator):
         self.overflows = 0  # [bytes] lost to a full receive buffer
         self.max_rx_used = 0  # [bytes] the most ever waiting in the receive buffer
         self.responding = True  # False: read and drop everything, answer nothing
-        self.trace: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=trace_max)  # (clock s, physical)
+        self._trace: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=trace_max)
         self._lock = threading.RLock()
         self._tx = bytearray()
         self._inject_error: int | None = None
@@ -349,10 +349,18 @@ class GrblEmulator(PtyEmulator):
         with self._lock:
             return dict(zip(self.axes, self._wco(), strict=True))
 
+    @property
+    def trace(self) -> list[tuple[float, tuple[float, ...]]]:
+        """The motion recorded since ``clear_trace()``: (clock time [s], the physical position per axis
+        [units], in ``axes`` order), at every pass of the machine model while it moves (the thread's
+        2 ms poll and every query) and at each block's end; the last ``trace_max`` samples. A copy."""
+        with self._lock:
+            return list(self._trace)
+
     def clear_trace(self) -> None:
         """Forget the recorded motion trace."""
         with self._lock:
-            self.trace.clear()
+            self._trace.clear()
 
     @property
     def state(self) -> str:
@@ -490,7 +498,7 @@ class GrblEmulator(PtyEmulator):
                 n = len(self._blocks)
                 used += self._ramp(left)
                 if len(self._blocks) != n:  # a block boundary: trace it at its own time
-                    self.trace.append((t0 + used / self.time_scale, tuple(self._physical())))
+                    self._trace.append((t0 + used / self.time_scale, tuple(self._physical())))
             elif self._dwell_left is not None and self._synced():
                 step = min(left, self._dwell_left)
                 self._dwell_left -= step
@@ -500,7 +508,7 @@ class GrblEmulator(PtyEmulator):
             else:
                 break
         if self._moving() or self._hold == 1:
-            self.trace.append((now, tuple(self._physical())))
+            self._trace.append((now, tuple(self._physical())))
 
     # -- the stepper (stepper.c's st_prep_buffer, integrated exactly) ---------------------------------
 
@@ -1117,7 +1125,8 @@ class GrblEmulator(PtyEmulator):
             pos = [p - w for p, w in zip(pos, wco, strict=True)]
         fields = [state, f"{'MPos' if mask & 1 else 'WPos'}:{self._values(pos)}"]
         if mask & 2:
-            fields.append(f"Bf:{self.planner_blocks - len(self._blocks)},{self.rx_buffer - len(self._rx)}")
+            planned = len(self._blocks) if self._homing is None else 0  # homing moves are outside the buffer
+            fields.append(f"Bf:{self.planner_blocks - planned},{self.rx_buffer - len(self._rx)}")
         speed = min(max(self._modal.speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
         rate = self._v * 60.0 if self._moving() or self._hold == 1 else 0.0
         fields.append(f"FS:{rate:.0f},{speed:.0f}")
