@@ -680,6 +680,16 @@ def test_a_switch_pressed_with_hard_limits_on_raises_alarm_1(grbl: Open) -> None
     assert emu.physical()["X"] == pytest.approx(10.0, abs=0.004) and emu.state == "Alarm"
 
 
+def test_leaving_a_pressed_switch_also_trips_the_hard_limit(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={21: 1}, home_switches={"X": 0.0, "Y": 50.0})
+    assert status(ser)["Pn"] == "X"  # the arm rests on X's switch: its limit pin shows
+    assert command(ser, "G1 X-1 F300") == ["ok"]
+    clock.now += 1.0
+    assert read_until(ser, "[MSG:Reset to continue]") == ["ALARM:1", "[MSG:Reset to continue]"]  # a pin change
+    assert emu.steps()["X"] == -1 and "Pn" not in status(ser)  # one step off the switch
+
+
 def test_soft_limit_stops_under_control_then_alarm_2(grbl: Open) -> None:
     clock = FakeClock()
     emu, ser = grbl(clock=clock, settings={22: 1, 20: 1})

@@ -60,12 +60,14 @@ Covered:
   ``[G92:..]``, ``[TLO:0.000]``, ``[PRB:0.000,..:0]``; ``$G`` shows the active system.
 - Status reports (report.c): ``<Idle|MPos:...|FS:...>`` with ``$10`` bit 0 MPos, else WPos =
   MPos - WCO (WCO = the active G54-G59 data + G92); bit 1 ``Bf:`` (planner blocks free, receive
-  bytes free); ``FS:`` the current speed; ``WCO:`` in the first report, every 10th idle or 30th
+  bytes free); ``FS:`` the current speed; ``Pn:`` the axes whose switch is pressed (with
+  ``home_switches``); ``WCO:`` in the first report, every 10th idle or 30th
   busy one, and the next after an offset changes; ``Ov:`` every 10th/20th, the one after a WCO.
   A ``?`` is answered ``status_delay`` later (GRBL's next main-loop pass); a ``?`` arriving before
   that report is merged into it, as GRBL's report flag does.
 - Alarms (limits.c, protocol.c, motion_control.c): a hard limit (``inject_alarm(1)``, or, with
-  ``$21=1`` and ``home_switches``, a move pressing a switch, cut at that step) kills motion at once,
+  ``$21=1`` and ``home_switches``, a move that presses or leaves a switch: any change of a limit
+  pin, as without HARD_LIMIT_FORCE_STATE_CHECK; cut at that step) kills motion at once,
   no deceleration: a real machine may lose steps there and its position then be wrong (here both
   positions stay consistent). A soft limit (``inject_alarm(2)``, or with ``$20=1`` a target
   outside ``[-$13x, 0]``) first stops under control like a feed hold, so no position is lost. Both
@@ -105,11 +107,10 @@ Where real GRBL differs, or may:
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G28``/``G30``
   (their ``$#`` slots are kept) and ``G28.1``/``G30.1``, ``G38.x`` probing, ``G43.1``, ``G93``,
   ``M0``/``M1``/``M2``/``M30``, jogging ``$J=``, ``$N``, ``$C``, ``$SLP``, ``$I=``; overrides, the
-  safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; the limit
-  pins (``Pn:``) are not reported. ``$RST=$`` restores this emulator's defaults.
-- Hard limits: GRBL's pin-change interrupt fires on any change, a switch released as well as
-  pressed; here only a move onto a switch trips, and only with ``home_switches``. Homing's
-  switches trip exactly at their step (no switch travel, no bounce, no dual axes).
+  safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; ``$5``
+  (inverted limit pins) is ignored. ``$RST=$`` restores this emulator's defaults.
+- Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
+  switch travel, no bounce, no dual axes, no switch at the other end of an axis).
 - ``!`` or ``~`` during homing are dropped (GRBL acts on them once homing ends). A real reset
   also loses bytes arriving during it, and the ``?`` latency varies with the main loop's load.
 - A real alarm is often accompanied by a reset (hard limit, homing failures) that prints the
@@ -713,10 +714,13 @@ class GrblEmulator(PtyEmulator):
         b.max_entry_speed_sqr = min(nominal, self._prev_nominal) ** 2
         b.max_entry_speed_sqr = min(b.max_entry_speed_sqr, b.max_junction_speed_sqr)
         self._prev_nominal, self._prev_unit, self._pl_position = nominal, unit, list(target)
-        if self.settings[21] and self.home_switches:  # hard limits: where the block would press a switch
+        if self.settings[21] and self.home_switches:  # hard limits: where the block would change a limit pin
             for i in range(len(unit)):
                 switch = self._switch_steps(i)
-                if switch is not None and not self._pressed(i, start[i]) and self._pressed(i, target[i]):
+                pressed = self._pressed(i, start[i])
+                if switch is not None and pressed != self._pressed(i, target[i]):
+                    if pressed:  # leaving the switch: its pin changes too (no HARD_LIMIT_FORCE_STATE_CHECK)
+                        switch += -1 if not int(self.settings[23]) >> i & 1 else 1
                     trip = (switch - start[i]) / (target[i] - start[i]) * length
                     b.stop_rem = max(b.stop_rem, length - trip)
         self._blocks.append(b)
@@ -1130,6 +1134,10 @@ class GrblEmulator(PtyEmulator):
         speed = min(max(self._modal.speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
         rate = self._v * 60.0 if self._moving() or self._hold == 1 else 0.0
         fields.append(f"FS:{rate:.0f},{speed:.0f}")
+        steps = self._steps_now()
+        pins = "".join(a for i, a in enumerate(self.axes) if self._pressed(i, steps[i]))
+        if pins:
+            fields.append(f"Pn:{pins}")  # the limit pins pressed (REPORT_FIELD_PIN_STATE)
         if self._wco_count > 0:
             self._wco_count -= 1
         else:
