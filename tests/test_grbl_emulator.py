@@ -714,3 +714,13 @@ def test_status_reports_come_after_status_delay_and_merge(grbl: Open) -> None:
     assert time.monotonic() - start >= 0.045
     ser.timeout = 0.1
     assert readline(ser) == ""  # the second '?' came before the report: one report for both
+
+
+def test_baud_paces_the_bytes_as_the_serial_line_would(grbl: Open) -> None:
+    _, ser = grbl(baud=115200, status_delay=0)  # 11 520 bytes/s
+    lines = b"(" + b"c" * 58 + b")\n"  # 60 bytes, a comment: taken at once, answered ok
+    start = time.monotonic()
+    ser.write(lines * 20 + b"?")
+    assert [readline(ser) for _ in range(20)] == ["ok"] * 20
+    assert readline(ser).startswith("<Idle|")
+    assert time.monotonic() - start >= 1201 / 11520  # 0.104 s on the wire, at least

@@ -117,8 +117,9 @@ Where real GRBL differs, or may:
   welcome; ``inject_alarm`` does not (reset yourself, as a host must anyway after 1 and 2).
 - ``physical()`` uses the current ``$10x``: changing steps/unit rescales it, where a real arm's
   gearing would not change.
-- The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them, and the
-  parser takes a line faster than GRBL's few milliseconds.
+- The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them, unless
+  ``baud`` paces them (both ways, in 1-2 ms batches); either way the parser takes a line faster
+  than GRBL's few milliseconds of parsing and planning.
 - Linux pseudo-terminals: the port's open and close are seen as the master's hang-up clearing and
   setting, polled every 2 ms; a close and reopen quicker than that goes unseen (no reset, no welcome).
 """
@@ -263,7 +264,7 @@ class GrblEmulator(PtyEmulator):
                  physical_start: Mapping[str, float] | None = None,
                  home_switches: Mapping[str, float] | None = None,
                  homing_cycles: tuple[str, ...] = ("Z", "XY"),
-                 status_delay: float = 0.003, trace_max: int = 200_000) -> None:
+                 status_delay: float = 0.003, trace_max: int = 200_000, baud: int | None = None) -> None:
         """``axes``: the axis letters (from XYZABC), in report order; ``rx_buffer`` [bytes] and
         ``planner_blocks``: GRBL's buffer sizes (15 usable blocks of BLOCK_BUFFER_SIZE 16);
         ``time_scale``: machine seconds per clock second (10 runs motion and dwells 10 times as fast);
@@ -274,18 +275,24 @@ class GrblEmulator(PtyEmulator):
         axis' homing switch is, in the same frame (None: ``$H`` sets the homed position without
         moving); ``homing_cycles``: the axes homed together, cycle by cycle (config.h's
         HOMING_CYCLE_0, _1: Z, then X and Y); ``status_delay`` [wall s]: from ``?`` to its report
-        (GRBL answers at its next main-loop pass); ``trace_max``: the samples ``trace`` keeps."""
+        (GRBL answers at its next main-loop pass); ``trace_max``: the samples ``trace`` keeps;
+        ``baud``: pass bytes both ways no faster than this serial line would (8N1: baud / 10 bytes/s;
+        None: as fast as the pseudo-terminal does)."""
         super().__init__()
         axes = axes.upper()
         if not axes or len(set(axes)) != len(axes) or any(a not in AXIS_LETTERS for a in axes):
             raise ValueError(f"axes must be distinct letters of {AXIS_LETTERS}, not {axes!r}")
-        if rx_buffer < 1 or planner_blocks < 1 or time_scale <= 0 or status_delay < 0:
+        if rx_buffer < 1 or planner_blocks < 1 or time_scale <= 0 or status_delay < 0 or (baud or 1) <= 0:
             raise ValueError("rx_buffer, planner_blocks and time_scale must be positive, status_delay not negative")
         self.axes = axes
         self.rx_buffer = rx_buffer
         self.planner_blocks = planner_blocks
         self.time_scale = time_scale
         self.status_delay = status_delay
+        self.baud = baud
+        self._wire = bytearray()  # bytes on their way in over the serial line (with ``baud``)
+        self._rx_credit = self._tx_credit = 0.0  # [bytes] the line's capacity not yet used, each way
+        self._wire_last = time.monotonic()
         self._clock = clock
         self.settings: dict[int, float] = dict(_DEFAULTS)
         for base, value in _AXIS_DEFAULTS.items():
@@ -913,7 +920,7 @@ class GrblEmulator(PtyEmulator):
         poller.register(self._master, select.POLLIN)
         connected = False
         while not self._stop.is_set():
-            timeout = _POLL_MS
+            timeout = 1 if self._wire or (self.baud and self._tx) else _POLL_MS
             if self._status_due is not None and self._homing is None:
                 timeout = max(0, min(timeout, math.ceil((self._status_due - time.monotonic()) * 1000)))
             events = poller.poll(timeout)
@@ -925,8 +932,10 @@ class GrblEmulator(PtyEmulator):
                 except OSError:
                     hung_up = True
             with self._lock:
+                data, tx_room = self._line_rate(data)
                 if hung_up:
                     connected = False
+                    self._wire.clear()
                 elif not connected:  # a client opened the port: the Arduino resets
                     connected = True
                     self._power_up()
@@ -940,11 +949,29 @@ class GrblEmulator(PtyEmulator):
                     self._status_report()
                 if not connected:
                     self._tx.clear()
-                elif self._tx:
+                elif self._tx and tx_room:
                     with contextlib.suppress(BlockingIOError):
-                        del self._tx[: os.write(self._master, self._tx)]
+                        sent = os.write(self._master, self._tx[:tx_room])
+                        del self._tx[:sent]
+                        self._tx_credit -= sent if self.baud else 0
             if hung_up:
                 time.sleep(_POLL_MS / 1000)  # the master reports the hang-up at once, every time
+
+    def _line_rate(self, data: bytes) -> tuple[bytes, int]:
+        """With ``baud``: the bytes that have crossed the line by now, and how many may go out."""
+        if not self.baud:
+            return data, len(self._tx)
+        now = time.monotonic()
+        rate, dt = self.baud / 10.0, now - self._wire_last
+        self._wire_last = now
+        self._wire += data
+        self._rx_credit = min(self._rx_credit + dt * rate, max(len(self._wire), 1))
+        self._tx_credit = min(self._tx_credit + dt * rate, max(len(self._tx), 1))
+        n = int(self._rx_credit)
+        data = bytes(self._wire[:n])
+        del self._wire[:n]
+        self._rx_credit -= len(data)
+        return data, int(self._tx_credit)
 
     def _receive(self, data: bytes) -> None:
         """Bytes from the host: real-time ones act now, the rest go through the receive buffer."""
