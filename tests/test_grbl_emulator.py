@@ -724,3 +724,36 @@ def test_baud_paces_the_bytes_as_the_serial_line_would(grbl: Open) -> None:
     assert [readline(ser) for _ in range(20)] == ["ok"] * 20
     assert readline(ser).startswith("<Idle|")
     assert time.monotonic() - start >= 1201 / 11520  # 0.104 s on the wire, at least
+
+
+def test_g28_g30_and_program_flow(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "G0 X5 Y3") == ["ok"]
+    clock.now += 10.0
+    assert command(ser, "G28.1") == ["ok"]  # this machine position into EEPROM
+    assert report_lines(ser, "$#")["G28"] == "5.000,3.000,0.000"
+    assert command(ser, "G0 X0 Y0") == ["ok"]
+    clock.now += 10.0
+    assert command(ser, "G28 X1") == ["ok"]  # via X1, then home on X only
+    clock.now += 10.0
+    assert emu.position() == {"X": 5.0, "Y": 0.0, "Z": 0.0}
+    assert command(ser, "G28") == ["ok"]
+    clock.now += 10.0
+    assert emu.position() == {"X": 5.0, "Y": 3.0, "Z": 0.0}
+    assert command(ser, "G30") == ["ok"]  # never stored: machine zero
+    clock.now += 10.0
+    assert emu.position() == {"X": 0.0, "Y": 0.0, "Z": 0.0}
+    assert command(ser, "G28 G0 X1") == ["error:24"]
+    ser.write(b"G91 G1 X1 F600 M0\n")  # M0: the move runs, then a feed hold; ok at the resume
+    ser.timeout = 0.1
+    assert readline(ser) == ""
+    clock.now += 10.0
+    assert status(ser)["state"] == "Hold:0" and emu.position()["X"] == 1.0
+    assert readline(ser) == ""
+    ser.timeout = 1
+    ser.write(b"~")
+    assert readline(ser) == "ok"
+    assert command(ser, "G55 M3 S100") == ["ok"]
+    assert command(ser, "M2") == ["[MSG:Pgm End]", "ok"]  # G1 G54 G90 M5 M9; G91 was reset, units kept
+    assert command(ser, "$G")[0] == "[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F600 S100]"

@@ -83,11 +83,15 @@ Covered:
   ``rx_buffer``-byte receive buffer; bytes arriving when that is full are lost (``overflows``), as
   on the Arduino. Hence character counting: a host whose unanswered lines never exceed 128 bytes
   never loses any.
-- G-code (gcode.c): ``G0``, ``G1 ... F`` (units/min), ``G4 P<s>``, ``G10``, ``G53``, ``G54``-``G59``,
-  ``G90``/``G91``, ``G91.1``, ``G92``/``G92.1``, ``G20``/``G21``, ``N``, ``M3``/``M4``/``M5`` with ``S``,
-  ``M8``/``M9``, and the no-op modes ``G17``-``G19``, ``G40``, ``G49``, ``G61``, ``G80``, ``G94`` (``M7``
-  is ``error:20``, as in GRBL's default build). Errors 1, 2, 4, 9, 11, 20-31, 36, 38 as GRBL
-  numbers and orders them (``G0 G1`` is 24, as gc_execute_line finds the axis conflict first).
+- G-code (gcode.c): ``G0``, ``G1 ... F`` (units/min), ``G4 P<s>``, ``G10``, ``G28``/``G30`` (rapid,
+  through the block's point if any, to the stored position on the axes named, or all),
+  ``G28.1``/``G30.1`` (store the position), ``G53``, ``G54``-``G59``, ``G90``/``G91``, ``G91.1``,
+  ``G92``/``G92.1``, ``G20``/``G21``, ``N``, ``M0`` (after the line's moves, a feed hold; ``ok`` at the
+  resume), ``M1`` (ignored), ``M2``/``M30`` (after the moves: G1 G54 G90 M5 M9, ``[MSG:Pgm End]``),
+  ``M3``/``M4``/``M5`` with ``S``, ``M8``/``M9``, and the no-op modes ``G17``-``G19``, ``G40``,
+  ``G49``, ``G61``, ``G80``, ``G94`` (``M7`` is ``error:20``, as in GRBL's default build). Errors 1,
+  2, 4, 9, 11, 20-31, 36, 38 as GRBL numbers and orders them (``G0 G1`` is 24, as
+  gc_execute_line finds the axis conflict first).
 - ``$`` help, ``$$`` (``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8, 10, 12;
   ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
   GRBL resets itself). ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped.
@@ -104,9 +108,8 @@ Where real GRBL differs, or may:
   late there, and its planner already counts the prepared distance as done; here every change
   takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
   in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
-- Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G28``/``G30``
-  (their ``$#`` slots are kept) and ``G28.1``/``G30.1``, ``G38.x`` probing, ``G43.1``, ``G93``,
-  ``M0``/``M1``/``M2``/``M30``, jogging ``$J=``, ``$N``, ``$C``, ``$SLP``, ``$I=``; overrides, the
+- Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
+  probing, ``G43.1``, ``G93``, jogging ``$J=``, ``$N``, ``$C``, ``$SLP``, ``$I=``; overrides, the
   safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; ``$5``
   (inverted limit pins) is ignored. ``$RST=$`` restores this emulator's defaults.
 - Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
@@ -167,11 +170,12 @@ _DEFAULTS: dict[int, float] = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1
 _AXIS_DEFAULTS = {100: 250.0, 110: 500.0, 120: 10.0, 130: 200.0}  # steps/unit, units/min, units/s^2, units
 _BOOLS = {4, 5, 6, 13, 20, 21, 22, 32}
 _INTEGERS = {0, 1, 2, 3, 10, 23, 26} | _BOOLS
-_G_GROUPS = {0: "motion", 1: "motion", 80: "motion", 4: "non-modal", 10: "non-modal", 53: "non-modal",
-             92: "non-modal", 17: "plane", 18: "plane", 19: "plane", 20: "units", 21: "units", 40: "cutter",
-             49: "tool length", 54: "wcs", 55: "wcs", 56: "wcs", 57: "wcs", 58: "wcs", 59: "wcs", 61: "control",
-             90: "distance", 91: "distance", 94: "feed mode"}
-_M_GROUPS = {3: "spindle", 4: "spindle", 5: "spindle", 8: "coolant", 9: "coolant"}
+_G_GROUPS = {0: "motion", 1: "motion", 80: "motion", 4: "non-modal", 10: "non-modal", 28: "non-modal",
+             30: "non-modal", 53: "non-modal", 92: "non-modal", 17: "plane", 18: "plane", 19: "plane",
+             20: "units", 21: "units", 40: "cutter", 49: "tool length", 54: "wcs", 55: "wcs", 56: "wcs", 57: "wcs",
+             58: "wcs", 59: "wcs", 61: "control", 90: "distance", 91: "distance", 94: "feed mode"}
+_M_GROUPS = {0: "flow", 1: "flow", 2: "flow", 30: "flow", 3: "spindle", 4: "spindle", 5: "spindle", 8: "coolant",
+             9: "coolant"}
 
 
 def _round_steps(x: float) -> int:
@@ -423,7 +427,9 @@ class GrblEmulator(PtyEmulator):
         self._raw = bytearray()
         self._comment = ""  # "(" or ";" while in a comment
         self._line_overflow = False
-        self._waiting: tuple[list[int], float] | None = None  # a move waiting for planner room: target, rate
+        self._waiting: deque[tuple[list[int], float]] = deque()  # moves waiting for planner room: target, rate/min
+        self._flow: int | None = None  # M0, M2 or M30: done once the line's moves have run (a buffer sync)
+        self._paused = False  # an M0 holding: its line is answered at the resume
         self._pending: str | None = None  # a line waiting for the planner to empty (a buffer sync)
         self._dwell_left: float | None = None  # [machine s] a G4 dwelling
         self._homing: _Homing | None = None
@@ -660,7 +666,8 @@ class GrblEmulator(PtyEmulator):
         self._prev_unit, self._prev_nominal = [0.0] * len(self.axes), 0.0
         self._gc_pos = self._units(self._steps_done)
         if not keep_parser:
-            self._waiting, self._pending, self._dwell_left = None, None, None
+            self._waiting, self._pending, self._dwell_left, self._flow = deque(), None, None, None
+            self._paused = False
             self._soft_limit_wait = self._held_line = False
 
     def _critical_alarm(self, code: int) -> None:
@@ -1008,7 +1015,8 @@ class GrblEmulator(PtyEmulator):
         return not self._blocks and not self._cycle and self._homing is None
 
     def _parser_busy(self) -> bool:
-        return (self._waiting is not None or self._pending is not None or self._dwell_left is not None
+        return (bool(self._waiting) or self._pending is not None or self._dwell_left is not None
+                or self._flow is not None or self._paused
                 or self._homing is not None or self._soft_limit_wait or self._held_line)
 
     def _auto_cycle_start(self) -> None:
@@ -1029,15 +1037,34 @@ class GrblEmulator(PtyEmulator):
                     self._reply(status)
         if self._dwell_left is not None and self._dwell_left <= 0.0:
             self._dwell_left = None
-            if self._waiting is None:
+            if not self._waiting and self._flow is None:
                 self._reply(0)
-        if self._waiting is not None and self._dwell_left is None:
-            if len(self._blocks) < self.planner_blocks:
-                self._plan_line(*self._waiting)
-                self._waiting = None
-                self._reply(0)
-            else:
+        while self._waiting and self._dwell_left is None:
+            if len(self._blocks) >= self.planner_blocks:
                 self._auto_cycle_start()  # mc_line: a full planner starts the cycle
+                return
+            self._plan_line(*self._waiting.popleft())
+            if not self._waiting and self._flow is None:
+                self._reply(0)
+        if self._flow is not None and self._dwell_left is None:
+            self._auto_cycle_start()  # protocol_buffer_synchronize
+            if self._synced():
+                self._program_flow()
+
+    def _program_flow(self) -> None:
+        """gc_execute_line's last step, once the planner is empty: M0 pauses (a feed hold, the line
+        answered at the resume), M2 and M30 end the program (some modal groups reset)."""
+        flow, self._flow = self._flow, None
+        if flow == 0:
+            self._hold, self._paused = 2, True
+            return
+        mod = self._modal
+        mod.motion, mod.absolute, mod.spindle, mod.coolant = 1, True, 5, 9
+        mod.coord_select = 0
+        self._coord_system = list(self.coords[0])
+        self._wco_changed()
+        self._send("[MSG:Pgm End]")
+        self._reply(0)
 
     def _read_lines(self) -> None:
         """GRBL's protocol loop: take characters from the receive buffer while the parser is free."""
@@ -1136,6 +1163,9 @@ class GrblEmulator(PtyEmulator):
             self._hold = 0
             if self._blocks:
                 self._cycle = True
+            if self._paused:  # the M0 line goes on
+                self._paused = False
+                self._reply(0)
         elif self._hold == 0:
             self._auto_cycle_start()
 
@@ -1320,14 +1350,14 @@ class GrblEmulator(PtyEmulator):
                     return 20
                 else:
                     group = table[code]
-                if letter == "G" and code in (10, 92) and mantissa == 0:
+                if letter == "G" and code in (10, 28, 30, 92) and mantissa == 0:
                     if axis_command:
                         return 24
                     axis_command = "non-modal"
-                if letter == "G" and code == 92:
+                if letter == "G" and code in (28, 30, 92):  # G28.1, G30.1, G92.1
                     if mantissa not in (0, 10):
                         return 20
-                    mantissas["92"], mantissa = mantissa, 0
+                    mantissas[str(code)], mantissa = mantissa, 0
                 if letter == "G" and code in (0, 1):
                     if axis_command:
                         return 24
@@ -1346,9 +1376,9 @@ class GrblEmulator(PtyEmulator):
             else:
                 return 20
         non_modal = groups.get("non-modal", -1)
-        g92_1 = non_modal == 92 and mantissas.get("92") == 10
-        if g92_1:
-            non_modal = 921
+        if mantissas.get(str(non_modal)) == 10:
+            non_modal = non_modal * 10 + 1  # 281, 301, 921: G28.1, G30.1, G92.1
+        g92_1 = non_modal == 921
         if words.get("N", 0.0) > 9999999:
             return 27
         if words.get("T", 0.0) > 255:
@@ -1400,7 +1430,7 @@ class GrblEmulator(PtyEmulator):
             return 36  # the last of gc_execute_line's checks: value words no command used
         speed = words.get("S")
         spindle, coolant = groups.get("spindle", mod.spindle), groups.get("coolant", mod.coolant)
-        sync = non_modal in (4, 10, 92, 921) or coord_select != mod.coord_select
+        sync = non_modal in (4, 10, 92, 921, 281, 301) or coord_select != mod.coord_select
         if (spindle, coolant) != (mod.spindle, mod.coolant) or (speed not in (None, mod.speed) and spindle != 5):
             sync = sync or not self.settings[32]  # outside laser mode GRBL waits for the planner to empty
         if sync and not synced:
@@ -1431,7 +1461,10 @@ class GrblEmulator(PtyEmulator):
         if g92_1:
             self._g92 = [0.0] * len(self.axes)
             self._wco_changed()
-        if moving:
+        if non_modal in (281, 301):  # G28.1, G30.1: the parser's position into EEPROM
+            self.coords[6 if non_modal == 281 else 7] = list(self._gc_pos)
+        targets: list[tuple[list[float], float]] = []
+        if moving or (non_modal in (28, 30) and axis):
             target_units = list(self._gc_pos)
             for j, a in enumerate(self.axes):
                 if a in axis:
@@ -1441,14 +1474,23 @@ class GrblEmulator(PtyEmulator):
                         target_units[j] = axis[a] + self._coord_system[j] + self._g92[j]
                     else:
                         target_units[j] += axis[a]
+            targets.append((target_units, 0.0 if motion == 0 or non_modal in (28, 30) else feed))
+        if non_modal in (28, 30):  # G28, G30: rapid to the stored position (of the axes named, if any)
+            stored = self.coords[6 if non_modal == 28 else 7]
+            final = [stored[j] if not axis or a in axis else p for j, (a, p) in enumerate(zip(self.axes, self._gc_pos,
+                                                                                               strict=True))]
+            targets.append((final, 0.0))
+        for target_units, rate in targets:
             if self.settings[20] and any(t > 0.0 or t < -self.settings[130 + j] for j, t in enumerate(target_units)):
                 self._held_line = True  # limits_soft_check: the parser stays in this line till the reset
                 self._soft_limit()
                 return None
             self._gc_pos = target_units
-            target = [_round_steps(p * self._spu(j)) for j, p in enumerate(target_units)]
-            self._waiting = (target, 0.0 if motion == 0 else feed)
-        if self._dwell_left is not None or self._waiting is not None:
+            self._waiting.append(([_round_steps(p * self._spu(j)) for j, p in enumerate(target_units)], rate))
+        flow = groups.get("flow")
+        if flow in (0, 2, 30):
+            self._flow = flow
+        if self._dwell_left is not None or self._waiting or self._flow is not None:
             return None
         return 0
 
