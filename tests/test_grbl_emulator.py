@@ -757,3 +757,15 @@ def test_g28_g30_and_program_flow(grbl: Open) -> None:
     assert command(ser, "G55 M3 S100") == ["ok"]
     assert command(ser, "M2") == ["[MSG:Pgm End]", "ok"]  # G1 G54 G90 M5 M9; G91 was reset, units kept
     assert command(ser, "$G")[0] == "[GC:G1 G54 G17 G21 G90 G94 M5 M9 T0 F600 S100]"
+
+
+def test_startup_lines_run_after_every_reset_out_of_alarm(grbl: Open) -> None:
+    _, ser = grbl(startup_lines=("G91",), settings={22: 1})  # a board someone configured before
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"  # in Alarm: no startup lines
+    assert command(ser, "$N") == ["$N0=G91", "$N1=", "ok"]
+    assert command(ser, "$H") == [">G91:ok", "ok"]  # after homing, they run
+    assert command(ser, "$N1=g20 g0") == ["ok"]  # run to check it, then stored as the parser sees it
+    assert command(ser, "$N1=G99") == ["error:20"]
+    ser.write(b"\x18")
+    assert read_until(ser, ">G20G0:ok") == [WELCOME, ">G91:ok", ">G20G0:ok"]
+    assert command(ser, "$G")[0].startswith("[GC:G0 G54 G17 G20 G91 ")

@@ -94,12 +94,14 @@ Covered:
   gc_execute_line finds the axis conflict first).
 - ``$`` help, ``$$`` (``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8, 10, 12;
   ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
-  GRBL resets itself). ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped.
+  GRBL resets itself), ``$N`` and ``$N0=``/``$N1=`` startup lines (system.c: run to check them when
+  stored; run after every reset out of Alarm and after ``$H``, each reported ``>line:ok``).
+  ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped.
 - For tests: ``trace`` (clock time, physical position per axis) at every pass of the machine
   model while moving (the thread's 2 ms poll, and every query) and at each block's end, cleared
   by ``clear_trace()``; ``inject_alarm(code)`` (other codes: motion stops, the planner empties, a
   waiting line is ``error:9``), ``inject_error_on_next_line(code)``, and ``responding = False``
-  (silent: reads and drops all); ``settings`` to start with (``{22: 1}``).
+  (silent: reads and drops all); ``settings`` and ``startup_lines`` to start with (``{22: 1}``).
 
 Where real GRBL differs, or may:
 
@@ -109,7 +111,7 @@ Where real GRBL differs, or may:
   takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
   in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
-  probing, ``G43.1``, ``G93``, jogging ``$J=``, ``$N``, ``$C``, ``$SLP``, ``$I=``; overrides, the
+  probing, ``G43.1``, ``G93``, jogging ``$J=``, ``$C``, ``$SLP``, ``$I=``; overrides, the
   safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; ``$5``
   (inverted limit pins) is ignored. ``$RST=$`` restores this emulator's defaults.
 - Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
@@ -268,7 +270,8 @@ class GrblEmulator(PtyEmulator):
                  physical_start: Mapping[str, float] | None = None,
                  home_switches: Mapping[str, float] | None = None,
                  homing_cycles: tuple[str, ...] = ("Z", "XY"),
-                 status_delay: float = 0.003, trace_max: int = 200_000, baud: int | None = None) -> None:
+                 status_delay: float = 0.003, trace_max: int = 200_000, baud: int | None = None,
+                 startup_lines: tuple[str, ...] = ()) -> None:
         """``axes``: the axis letters (from XYZABC), in report order; ``rx_buffer`` [bytes] and
         ``planner_blocks``: GRBL's buffer sizes (15 usable blocks of BLOCK_BUFFER_SIZE 16);
         ``time_scale``: machine seconds per clock second (10 runs motion and dwells 10 times as fast);
@@ -281,7 +284,8 @@ class GrblEmulator(PtyEmulator):
         HOMING_CYCLE_0, _1: Z, then X and Y); ``status_delay`` [wall s]: from ``?`` to its report
         (GRBL answers at its next main-loop pass); ``trace_max``: the samples ``trace`` keeps;
         ``baud``: pass bytes both ways no faster than this serial line would (8N1: baud / 10 bytes/s;
-        None: as fast as the pseudo-terminal does)."""
+        None: as fast as the pseudo-terminal does); ``startup_lines``: ``$N0``, ``$N1`` already in EEPROM
+        (G-code GRBL runs after every reset out of Alarm, and after ``$H``)."""
         super().__init__()
         axes = axes.upper()
         if not axes or len(set(axes)) != len(axes) or any(a not in AXIS_LETTERS for a in axes):
@@ -314,6 +318,9 @@ class GrblEmulator(PtyEmulator):
         bad = [a for a in {**(physical_start or {}), **(home_switches or {})} if a not in axes]
         if bad or any(a not in axes for cycle in homing_cycles for a in cycle.upper()):
             raise ValueError(f"physical_start, home_switches and homing_cycles must name axes of {axes}")
+        if len(startup_lines) > 2:
+            raise ValueError("GRBL keeps two startup lines ($N0, $N1)")
+        self.startup_lines = [("".join(s.split())).upper() for s in startup_lines] + [""] * (2 - len(startup_lines))
         self.home_switches = None if home_switches is None else dict(home_switches)
         self.homing_cycles = tuple(c.upper() for c in homing_cycles)
         self.lines: list[str] = []  # every line the parser took, as received without its end
@@ -788,6 +795,7 @@ class GrblEmulator(PtyEmulator):
                 self._set_homed(mask)
             self._alarm = False
             self._sync_positions()
+            self._run_startup()
             return 0
         self._homing = _Homing(deque(cycles))
         self._alarm = False  # STATE_HOMING
@@ -801,6 +809,7 @@ class GrblEmulator(PtyEmulator):
             self._homing = None
             self._alarm = False
             self._sync_positions()
+            self._run_startup()
             self._reply(0)
             return
         h.mask = h.cycles.popleft()
@@ -1122,9 +1131,23 @@ class GrblEmulator(PtyEmulator):
         self._send("ok" if status == 0 else f"error:{status}")
 
     def _welcome(self) -> None:
+        """report_init_message, then protocol_main_loop's start: the Alarm lock's message, or the startup lines."""
         self._send(WELCOME[:-2])
         if self._alarm:
             self._send("[MSG:'$H'|'$X' to unlock]")
+        else:
+            self._run_startup()
+
+    def _run_startup(self) -> None:
+        """system_execute_startup: each stored line runs as G-code, reported ``>line:ok``. Its moves
+        are planned at once (the planner is empty then); a G4 or M0/M2 in it is not waited for."""
+        for line in self.startup_lines:
+            if line:
+                status = self._gcode(line, synced=True)
+                while self._waiting:
+                    self._plan_line(*self._waiting.popleft())
+                self._dwell_left = self._flow = None
+                self._send(f">{line}:{'ok' if not status else f'error:{status}'}")
 
     def _soft_reset(self) -> None:
         """Ctrl-X (mc_reset, then main.c's re-initialisation): stop, empty every buffer, keep the
@@ -1267,6 +1290,20 @@ class GrblEmulator(PtyEmulator):
             return self._home()
         if cmd.startswith("RST="):
             return self._restore(cmd[4:])
+        if cmd == "N":
+            for n, stored in enumerate(self.startup_lines):
+                self._send(f"$N{n}={stored}")
+            return 0
+        m = re.fullmatch(r"N(\d+)=(.*)", cmd)
+        if m:
+            if state != "Idle":
+                return 8  # stored only when idle: GRBL prevents motion during Alarm
+            if int(m.group(1)) > 1:
+                return 3  # N_STARTUP_LINE is 2 (GRBL itself does not check: it would write past them)
+            status = self._gcode(m.group(2)) if m.group(2) else 0  # run to check it, as GRBL does
+            if not status:
+                self.startup_lines[int(m.group(1))] = m.group(2)
+            return status
         if cmd[0] in "CJNRSI":
             return 3  # $C, $J=, $N, $SLP, $I=: not emulated
         m = _SETTING.fullmatch(line)
