@@ -769,3 +769,38 @@ def test_startup_lines_run_after_every_reset_out_of_alarm(grbl: Open) -> None:
     ser.write(b"\x18")
     assert read_until(ser, ">G20G0:ok") == [WELCOME, ">G91:ok", ">G20G0:ok"]
     assert command(ser, "$G")[0].startswith("[GC:G0 G54 G17 G20 G91 ")
+
+
+def test_jogging_and_jog_cancel(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "$J=G91 X10 F300") == ["ok"]  # starts at once; its G91 and F are its own
+    assert command(ser, "G1 X0 F300") == ["error:9"]  # G-code is locked out while jogging
+    for line, code in [("$J=X1", 22), ("$J=G1 X1 F100", 16), ("$J=G91 X1 F100 S5", 16), ("$J X1", 3)]:
+        assert command(ser, line) == [f"error:{code}"], line
+    clock.now += 1.0  # X = 3.75 at 5 units/s
+    ser.write(b"\x85")  # jog cancel: decelerate, then flush: Idle, not Hold
+    report = status(ser)
+    assert report["state"] == "Jog"
+    clock.now += 0.6
+    report = status(ser)
+    assert report["state"] == "Idle" and mpos(report)[0] == pytest.approx(5.0, abs=0.004)
+    assert command(ser, "$G")[0].startswith("[GC:G0 G54 G17 G21 G90 ")  # the jog changed no mode
+    assert command(ser, "G1 X0") == ["error:22"]  # nor the feed rate
+    assert command(ser, "$J=G53 X1 F300") == ["ok"]
+    clock.now += 0.1
+    ser.write(b"!")  # a feed hold while jogging cancels the jog too
+    assert status(ser)["state"] == "Jog"
+    clock.now += 1.0
+    assert status(ser)["state"] == "Idle" and 1.0 < emu.position()["X"] < 5.0
+    emu.inject_alarm(5)
+    assert readline(ser) == "ALARM:5"
+    assert command(ser, "$J=G91 X1 F100") == ["error:8"]
+
+
+def test_a_jog_beyond_soft_limits_is_refused(grbl: Open) -> None:
+    _, ser = grbl(settings={22: 1, 20: 1})
+    assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"
+    assert command(ser, "$H") == ["ok"]  # X = -1
+    assert command(ser, "$J=G91 X2 F100") == ["error:15"]  # to +1: no alarm, just refused
+    assert status(ser)["state"] == "Idle"

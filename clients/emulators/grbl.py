@@ -96,7 +96,12 @@ Covered:
   ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
   GRBL resets itself), ``$N`` and ``$N0=``/``$N1=`` startup lines (system.c: run to check them when
   stored; run after every reset out of Alarm and after ``$H``, each reported ``>line:ok``).
-  ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped.
+  ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped, but for 0x85.
+- Jogging (gcode.c, jog.c, protocol.c): ``$J=`` with axis words, its own ``F``, and optionally
+  ``G90``/``G91``, ``G20``/``G21``, ``G53`` (others error 16, no F 22), in Idle or Jog (else error 8);
+  it starts at once, state ``Jog``, and changes no modal state; with ``$20=1`` a jog beyond the
+  limits is error 15 (no alarm). G-code lines while jogging are error 9. ``0x85`` or ``!`` cancel
+  it: a deceleration, then the planner is flushed and the state is Idle.
 - For tests: ``trace`` (clock time, physical position per axis) at every pass of the machine
   model while moving (the thread's 2 ms poll, and every query) and at each block's end, cleared
   by ``clear_trace()``; ``inject_alarm(code)`` (other codes: motion stops, the planner empties, a
@@ -111,7 +116,7 @@ Where real GRBL differs, or may:
   takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
   in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
-  probing, ``G43.1``, ``G93``, jogging ``$J=``, ``$C``, ``$SLP``, ``$I=``; overrides, the
+  probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; overrides, the
   safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; ``$5``
   (inverted limit pins) is ignored. ``$RST=$`` restores this emulator's defaults.
 - Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
@@ -160,7 +165,7 @@ HOMING_AXIS_LOCATE_SCALAR = 10.0  # limits.c: the locating approach searches 10 
 N_HOMING_LOCATE_CYCLE = 1  # config.h
 
 _POLL_MS = 2  # the thread's period [ms]
-_RESET, _STATUS, _HOLD, _RESUME = 0x18, ord("?"), ord("!"), ord("~")
+_RESET, _STATUS, _HOLD, _RESUME, _JOG_CANCEL = 0x18, ord("?"), ord("!"), ord("~"), 0x85
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)")
 _SETTING = re.compile(r"\$(" + _NUMBER.pattern + r")(?:(=)(" + _NUMBER.pattern + r")?)?(.*)")
 _ACCEL, _CRUISE, _DECEL, _DECEL_OVERRIDE = 0, 1, 2, 3  # stepper.c's ramp types
@@ -434,7 +439,8 @@ class GrblEmulator(PtyEmulator):
         self._raw = bytearray()
         self._comment = ""  # "(" or ";" while in a comment
         self._line_overflow = False
-        self._waiting: deque[tuple[list[int], float]] = deque()  # moves waiting for planner room: target, rate/min
+        # moves waiting for planner room: target [steps], rate [units/min], a jog?
+        self._waiting: deque[tuple[list[int], float, bool]] = deque()
         self._flow: int | None = None  # M0, M2 or M30: done once the line's moves have run (a buffer sync)
         self._paused = False  # an M0 holding: its line is answered at the resume
         self._pending: str | None = None  # a line waiting for the planner to empty (a buffer sync)
@@ -454,7 +460,8 @@ class GrblEmulator(PtyEmulator):
         self._prof: _Profile | None = None  # the running block's profile; None: not loaded (pl_block NULL)
         self._recalc = False  # PREP_FLAG_RECALCULATE: re-profile the running block, keep its speed
         self._v = 0.0  # [units/s] prep.current_speed
-        self._cycle = False  # STATE_CYCLE
+        self._cycle = False  # STATE_CYCLE (or STATE_JOG)
+        self._jog = False  # the motion is a $J= jog: state Jog; a hold cancels it
         self._hold = 0  # 0 none, 1 decelerating (Hold:1), 2 complete (Hold:0: the main loop is suspended)
         self._pl_position = list(self._steps_done)  # plan_sync_position
         self._prev_unit = [0.0] * len(self.axes)
@@ -479,6 +486,8 @@ class GrblEmulator(PtyEmulator):
             return "Alarm"
         if self._homing is not None:
             return "Home"
+        if self._jog:
+            return "Jog"  # also while a jog cancel decelerates
         if self._hold:
             return "Hold"
         return "Run" if self._cycle else "Idle"
@@ -652,6 +661,11 @@ class GrblEmulator(PtyEmulator):
     def _cycle_stop(self) -> None:
         """protocol.c's EXEC_CYCLE_STOP: a hold completes (Hold:0), or the cycle ends (Idle)."""
         self._cycle = False
+        if self._jog:  # a jog ends, or its cancel has stopped: flush the planner and sync (protocol.c)
+            self._jog = False
+            if self._hold:
+                self._abort_motion(keep_parser=True)
+            return
         if self._hold == 1 and not self._soft_limit_wait:
             self._hold = 2
             self._st_update()  # plan_cycle_reinitialize: re-plan from rest
@@ -668,7 +682,7 @@ class GrblEmulator(PtyEmulator):
         self._steps_done = self._steps_now()
         self._blocks.clear()
         self._prof, self._recalc, self._v, self._planned = None, False, 0.0, 0
-        self._cycle, self._hold, self._homing = False, 0, None
+        self._cycle, self._hold, self._homing, self._jog = False, 0, None, False
         self._pl_position = list(self._steps_done)
         self._prev_unit, self._prev_nominal = [0.0] * len(self.axes), 0.0
         self._gc_pos = self._units(self._steps_done)
@@ -1005,6 +1019,11 @@ class GrblEmulator(PtyEmulator):
                 self._feed_hold()
             elif c == _RESUME:
                 self._cycle_start()
+            elif c == _JOG_CANCEL:
+                self._advance()
+                if self._jog and not self._hold:
+                    self._st_update()
+                    self._hold = 1
             elif c < 0x80:
                 if len(self._rx) < self.rx_buffer:
                     self._rx.append(c)
@@ -1052,7 +1071,10 @@ class GrblEmulator(PtyEmulator):
             if len(self._blocks) >= self.planner_blocks:
                 self._auto_cycle_start()  # mc_line: a full planner starts the cycle
                 return
-            self._plan_line(*self._waiting.popleft())
+            target, rate, jog = self._waiting.popleft()
+            self._plan_line(target, rate)
+            if jog and not self._cycle and not self._hold and not self._alarm:
+                self._cycle = self._jog = True  # jog_execute: a jog starts at once, from Idle
             if not self._waiting and self._flow is None:
                 self._reply(0)
         if self._flow is not None and self._dwell_left is None:
@@ -1114,8 +1136,8 @@ class GrblEmulator(PtyEmulator):
         elif self._inject_error is not None:
             code, self._inject_error = self._inject_error, None
             self._reply(code)
-        elif self._alarm:
-            self._reply(9)
+        elif self._alarm or self._jog:
+            self._reply(9)  # protocol_main_loop: G-code is locked out in Alarm and while jogging
         else:
             status = self._gcode(line)
             if status is not None:
@@ -1145,7 +1167,7 @@ class GrblEmulator(PtyEmulator):
             if line:
                 status = self._gcode(line, synced=True)
                 while self._waiting:
-                    self._plan_line(*self._waiting.popleft())
+                    self._plan_line(*self._waiting.popleft()[:2])
                 self._dwell_left = self._flow = None
                 self._send(f">{line}:{'ok' if not status else f'error:{status}'}")
 
@@ -1167,7 +1189,8 @@ class GrblEmulator(PtyEmulator):
         self._welcome()
 
     def _feed_hold(self) -> None:
-        """``!``: decelerate along the path (stepper.c's forced deceleration), Hold:1 then Hold:0."""
+        """``!``: decelerate along the path (stepper.c's forced deceleration), Hold:1 then Hold:0 (while
+        jogging: a jog cancel)."""
         self._advance()
         if self._alarm or self._hold or self._homing is not None:
             return
@@ -1251,6 +1274,10 @@ class GrblEmulator(PtyEmulator):
         if not cmd:
             self._send("[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]")
             return 0
+        if cmd[0] == "J":  # before the Idle/Alarm check: jogs may follow jogs
+            if state not in ("Idle", "Jog"):
+                return 8
+            return self._jog_line(cmd[2:]) if cmd.startswith("J=") else 3
         if cmd[0] in "$GX" and len(cmd) > 1:
             return 3
         if cmd == "$":
@@ -1356,6 +1383,62 @@ class GrblEmulator(PtyEmulator):
         if n == 22 and not value:
             self.settings[20] = 0.0  # settings.c: disabling homing disables soft limits
         return 0
+
+    def _jog_line(self, line: str) -> int | None:
+        """``$J=...`` (gc_execute_line with GC_PARSER_JOG_MOTION, then jog_execute): a G1 at its own F
+        in its own G90/G91, G20/G21 or G53, changing no modal state; beyond soft limits error 15."""
+        words: dict[str, float] = {}
+        groups: dict[str, int] = {}
+        i = 0
+        while i < len(line):
+            letter = line[i]
+            if not "A" <= letter <= "Z":
+                return 1
+            m = _NUMBER.match(line, i + 1)
+            if not m:
+                return 2
+            i = m.end()
+            value = float(m.group())
+            if letter in "GM":
+                code = int(value)
+                if code not in (_G_GROUPS if letter == "G" else _M_GROUPS):
+                    return 20
+                group = {90: "distance", 91: "distance", 20: "units", 21: "units", 53: "non-modal"}.get(code)
+                if letter == "M" or group is None or code != value:
+                    return 16  # only distance, units and G53 words in a jog
+                if group in groups:
+                    return 21
+                groups[group] = code
+            elif letter in self.axes or letter in "FIJKLNPRST":
+                if letter in words:
+                    return 25
+                if letter in "FN" and value < 0.0:
+                    return 4
+                words[letter] = value
+            else:
+                return 20
+        if any(w not in self.axes and w not in "FN" for w in words):
+            return 16
+        if "F" not in words:
+            return 22  # a jog needs its own feed rate
+        mod = self._modal
+        scale = 25.4 if {20: True, 21: False}.get(groups.get("units", -1), mod.inches) else 1.0
+        absolute = groups.get("distance", 90 if mod.absolute else 91) == 90
+        target = list(self._gc_pos)
+        for j, a in enumerate(self.axes):
+            if a in words:
+                v = words[a] * scale
+                if "non-modal" in groups:
+                    target[j] = v
+                elif absolute:
+                    target[j] = v + self._coord_system[j] + self._g92[j]
+                else:
+                    target[j] += v
+        if self.settings[20] and any(t > 0.0 or t < -self.settings[130 + j] for j, t in enumerate(target)):
+            return 15  # jog_execute: a jog beyond the soft limits is refused, no alarm
+        self._gc_pos = target
+        self._waiting.append(([_round_steps(p * self._spu(j)) for j, p in enumerate(target)], words["F"] * scale, True))
+        return None
 
     def _gcode(self, line: str, synced: bool = False) -> int | None:
         """A G-code block (GRBL's gc_execute_line); return the status, or None if it waits for the machine.
@@ -1523,7 +1606,7 @@ class GrblEmulator(PtyEmulator):
                 self._soft_limit()
                 return None
             self._gc_pos = target_units
-            self._waiting.append(([_round_steps(p * self._spu(j)) for j, p in enumerate(target_units)], rate))
+            self._waiting.append(([_round_steps(p * self._spu(j)) for j, p in enumerate(target_units)], rate, False))
         flow = groups.get("flow")
         if flow in (0, 2, 30):
             self._flow = flow
