@@ -804,3 +804,17 @@ def test_a_jog_beyond_soft_limits_is_refused(grbl: Open) -> None:
     assert command(ser, "$H") == ["ok"]  # X = -1
     assert command(ser, "$J=G91 X2 F100") == ["error:15"]  # to +1: no alarm, just refused
     assert status(ser)["state"] == "Idle"
+
+
+def test_report_inches_changes_every_printed_position_and_rate(grbl: Open) -> None:
+    clock = FakeClock()
+    _, ser = grbl(clock=clock, settings={13: 1})  # a board someone set to report inches
+    assert command(ser, "G1 X25.4 F254") == ["ok"]  # in mm (G21): 25.4 mm at 254 mm/min
+    clock.now += 3.0
+    assert status(ser)["FS"] == "10.0,0"  # cruising at 254 mm/min = 10 in/min
+    clock.now += 10.0
+    assert status(ser)["MPos"] == "1.0000,0.0000,0.0000"  # 25.4 mm
+    assert command(ser, "$G")[0].endswith(" F10.0 S0]")
+    assert report_lines(ser, "$#")["TLO"] == "0.0000"
+    assert command(ser, "$13=0") == ["ok"]
+    assert command(ser, "$G")[0].endswith(" F254 S0]")

@@ -63,6 +63,8 @@ Covered:
   bytes free); ``FS:`` the current speed; ``Pn:`` the axes whose switch is pressed (with
   ``home_switches``); ``WCO:`` in the first report, every 10th idle or 30th
   busy one, and the next after an offset changes; ``Ov:`` every 10th/20th, the one after a WCO.
+  With ``$13=1`` positions are reported in inches (4 decimals) and rates in inches/min (1
+  decimal), in reports, ``$#`` and ``$G``'s F (print.c), whatever G20/G21 say.
   A ``?`` is answered ``status_delay`` later (GRBL's next main-loop pass); a ``?`` arriving before
   that report is merged into it, as GRBL's report flag does.
 - Alarms (limits.c, protocol.c, motion_control.c): a hard limit (``inject_alarm(1)``, or, with
@@ -116,9 +118,9 @@ Where real GRBL differs, or may:
   takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
   in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
-  probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; overrides, the
-  safety door, probe and spindle are absent; ``$13`` (inches) does not change reports; ``$5``
-  (inverted limit pins) is ignored. ``$RST=$`` restores this emulator's defaults.
+  probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; overrides, the safety door, probe and
+  spindle are absent; ``$5`` (inverted limit pins) is ignored. ``$RST=$`` restores this
+  emulator's defaults.
 - Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
   switch travel, no bounce, no dual axes, no switch at the other end of an axis).
 - ``!`` or ``~`` during homing are dropped (GRBL acts on them once homing ends). A real reset
@@ -1236,7 +1238,7 @@ class GrblEmulator(PtyEmulator):
             fields.append(f"Bf:{self.planner_blocks - planned},{self.rx_buffer - len(self._rx)}")
         speed = min(max(self._modal.speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
         rate = self._v * 60.0 if self._moving() or self._hold == 1 else 0.0
-        fields.append(f"FS:{rate:.0f},{speed:.0f}")
+        fields.append(f"FS:{self._rate(rate)},{speed:.0f}")
         steps = self._steps_now()
         pins = "".join(a for i, a in enumerate(self.axes) if self._pressed(i, steps[i]))
         if pins:
@@ -1257,9 +1259,15 @@ class GrblEmulator(PtyEmulator):
                 fields.append(f"A:{acc}")
         self._send("<" + "|".join(fields) + ">")
 
-    @staticmethod
-    def _values(values: list[float]) -> str:
+    def _values(self, values: list[float]) -> str:
+        """print.c's printFloat_CoordValue: mm with 3 decimals, or with ``$13=1`` inches with 4."""
+        if self.settings[13]:
+            return ",".join(f"{v / 25.4 + 0.0:.4f}" for v in values)
         return ",".join(f"{v + 0.0:.3f}" for v in values)  # + 0.0: no "-0.000"
+
+    def _rate(self, rate: float) -> str:
+        """printFloat_RateValue [units/min]: no decimals, or with ``$13=1`` inches/min with 1."""
+        return f"{rate / 25.4:.1f}" if self.settings[13] else f"{rate:.0f}"
 
     def _wco_changed(self) -> None:
         """system_flag_wco_change: the next report carries WCO:."""
@@ -1291,7 +1299,7 @@ class GrblEmulator(PtyEmulator):
             mod = self._modal
             self._send(f"[GC:G{mod.motion} G{54 + mod.coord_select} G17 G{20 if mod.inches else 21} "
                        f"G{90 if mod.absolute else 91} G94 M{mod.spindle} M{mod.coolant} T{mod.tool} "
-                       f"F{mod.feed / (25.4 if mod.inches else 1):.0f} S{mod.speed:.0f}]")
+                       f"F{self._rate(mod.feed)} S{mod.speed:.0f}]")  # F in $13's unit, not G20's
             return 0
         if cmd == "X":
             if self._alarm:
@@ -1306,7 +1314,7 @@ class GrblEmulator(PtyEmulator):
             for name, data in zip(COORD_NAMES, self.coords, strict=True):
                 self._send(f"[{name}:{self._values(data)}]")
             self._send(f"[G92:{self._values(self._g92)}]")
-            self._send("[TLO:0.000]")
+            self._send(f"[TLO:{self._values([0.0])}]")
             self._send(f"[PRB:{self._values([0.0] * len(self.axes))}:0]")
             return 0
         if cmd == "I":
