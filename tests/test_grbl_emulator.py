@@ -818,3 +818,30 @@ def test_report_inches_changes_every_printed_position_and_rate(grbl: Open) -> No
     assert report_lines(ser, "$#")["TLO"] == "0.0000"
     assert command(ser, "$13=0") == ["ok"]
     assert command(ser, "$G")[0].endswith(" F254 S0]")
+
+
+def test_feed_and_rapid_overrides_replan_the_motion(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "G1 X20 F300") == ["ok"]
+    clock.now += 1.0  # X = 3.75, cruising at 5 units/s
+    status(ser), status(ser)  # Ov: went out in the second report; it waits its turn again now
+    ser.write(bytes([0x91] * 5))  # feed +50 %
+    report = status(ser)
+    assert report["Ov"] == "150,100,100" and report["FS"] == "300,0"  # reported at once, not yet faster
+    clock.now += 0.25  # up to 7.5 units/s at 10 units/s^2
+    assert status(ser)["FS"] == "450,0" and emu.position()["X"] == pytest.approx(3.75 + 1.5625, abs=0.004)
+    ser.write(bytes([0x90]))  # back to 100 %: GRBL's deceleration-override ramp
+    assert status(ser)["Ov"] == "100,100,100"
+    clock.now += 0.1
+    assert status(ser)["FS"] == "390,0"
+    clock.now += 0.2
+    assert status(ser)["FS"] == "300,0"
+    ser.write(bytes([0x92] * 20))  # clamped at 10 %
+    assert status(ser)["Ov"] == "10,100,100"
+    clock.now += 100.0
+    assert emu.position()["X"] == 20.0
+    ser.write(bytes([0x90, 0x97]))  # rapids at 25 %
+    assert command(ser, "G0 X0") == ["ok"]
+    clock.now += 2.0
+    assert status(ser)["FS"] == f"{500 * 0.25:.0f},0"

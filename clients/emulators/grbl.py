@@ -98,7 +98,12 @@ Covered:
   ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
   GRBL resets itself), ``$N`` and ``$N0=``/``$N1=`` startup lines (system.c: run to check them when
   stored; run after every reset out of Alarm and after ``$H``, each reported ``>line:ok``).
-  ``0x18`` soft reset; bytes 0x80-0xFF (overrides) are dropped, but for 0x85.
+  ``0x18`` soft reset. Overrides (protocol.c, planner.c): feed ``0x90``-``0x94`` (10-200 %), rapid
+  ``0x95``-``0x97`` (100, 50, 25 %), spindle ``0x99``-``0x9D``; a feed or rapid change re-plans every
+  block (plan_update_velocity_profile_parameters) and the running one ramps to its new rate,
+  down by stepper.c's deceleration-override ramp; jogs and homing ignore the feed override;
+  ``Ov:`` shows them, in the next report after a change; M2/M30 restore them. Other bytes
+  0x80-0xFF are dropped.
 - Jogging (gcode.c, jog.c, protocol.c): ``$J=`` with axis words, its own ``F``, and optionally
   ``G90``/``G91``, ``G20``/``G21``, ``G53`` (others error 16, no F 22), in Idle or Jog (else error 8);
   it starts at once, state ``Jog``, and changes no modal state; with ``$20=1`` a jog beyond the
@@ -118,9 +123,9 @@ Where real GRBL differs, or may:
   takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
   in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
-  probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; overrides, the safety door, probe and
-  spindle are absent; ``$5`` (inverted limit pins) is ignored. ``$RST=$`` restores this
-  emulator's defaults.
+  probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; the spindle stop and coolant override
+  toggles; the safety door, probe and spindle are absent; ``$5`` (inverted limit pins) is
+  ignored. ``$RST=$`` restores this emulator's defaults.
 - Switches exist only with ``home_switches``, one per axis, and trip exactly at their step (no
   switch travel, no bounce, no dual axes, no switch at the other end of an axis).
 - ``!`` or ``~`` during homing are dropped (GRBL acts on them once homing ends). A real reset
@@ -220,9 +225,15 @@ class _Block:
     stop_rem: float = -1.0  # [units] homing approach: killed at once when millimeters reaches this
     clamp: list[int | None] | None = None  # homing approach: per axis, the step count its switch trips at
 
-    def nominal_speed(self) -> float:
-        """planner.c's plan_compute_profile_nominal_speed, with the overrides at 100 %."""
-        speed = self.programmed_rate if self.rapid else min(self.programmed_rate, self.rapid_rate)
+    no_feed_override: bool = False  # jogs and homing: PL_COND_FLAG_NO_FEED_OVERRIDE
+
+    def nominal_speed(self, feed_override: int = 100, rapid_override: int = 100) -> float:
+        """planner.c's plan_compute_profile_nominal_speed, with the overrides [%]."""
+        if self.rapid:
+            speed = self.programmed_rate * 0.01 * rapid_override
+        else:
+            speed = self.programmed_rate * (1.0 if self.no_feed_override else 0.01 * feed_override)
+            speed = min(speed, self.rapid_rate)
         return max(speed, MINIMUM_FEED_RATE)
 
 
@@ -463,6 +474,8 @@ class GrblEmulator(PtyEmulator):
         self._recalc = False  # PREP_FLAG_RECALCULATE: re-profile the running block, keep its speed
         self._v = 0.0  # [units/s] prep.current_speed
         self._cycle = False  # STATE_CYCLE (or STATE_JOG)
+        self._f_ovr, self._r_ovr, self._s_ovr = 100, 100, 100  # [%] the overrides, reset by every reset
+        self._decel_override = False  # PREP_FLAG_DECEL_OVERRIDE: the next block enters at the speed reached
         self._jog = False  # the motion is a $J= jog: state Jog; a hold cancels it
         self._hold = 0  # 0 none, 1 decelerating (Hold:1), 2 complete (Hold:0: the main loop is suspended)
         self._pl_position = list(self._steps_done)  # plan_sync_position
@@ -594,8 +607,9 @@ class GrblEmulator(PtyEmulator):
         """st_prep_buffer's (re)computation of the running block's velocity profile."""
         if self._recalc:
             self._recalc = False
-        elif self._hold == 1:  # a block loaded mid-hold enters at the speed the hold has reached
+        elif self._hold == 1 or self._decel_override:  # mid-hold (or override) it enters at the speed reached
             b.entry_speed_sqr = self._v * self._v
+            self._decel_override = False
         else:
             self._v = math.sqrt(b.entry_speed_sqr)
         p = _Profile()
@@ -612,7 +626,7 @@ class GrblEmulator(PtyEmulator):
             p.accelerate_until = mm
             exit_sqr = 0.0 if b.system or len(self._blocks) < 2 else self._blocks[1].entry_speed_sqr
             p.exit_speed = math.sqrt(exit_sqr)
-            nominal = b.nominal_speed()
+            nominal = b.nominal_speed(self._f_ovr, self._r_ovr)
             nominal_sqr = nominal * nominal
             intersect = 0.5 * (mm + inv_2_accel * (entry - exit_sqr))
             if entry > nominal_sqr:  # only with overrides in GRBL; kept for completeness
@@ -620,6 +634,7 @@ class GrblEmulator(PtyEmulator):
                 if p.accelerate_until <= 0.0:
                     p.ramp = _DECEL
                     p.exit_speed = math.sqrt(max(entry - 2.0 * a * mm, 0.0))
+                    self._decel_override = True
                 else:
                     p.decelerate_after = inv_2_accel * (nominal_sqr - exit_sqr)
                     p.maximum_speed = nominal
@@ -716,7 +731,7 @@ class GrblEmulator(PtyEmulator):
 
     # -- the planner (planner.c) -----------------------------------------------------------------
 
-    def _plan_line(self, target: list[int], rate: float, *, system: bool = False) -> _Block | None:
+    def _plan_line(self, target: list[int], rate: float, *, system: bool = False, jog: bool = False) -> _Block | None:
         """plan_buffer_line: ``rate`` [units/min], 0 for a rapid; returns the block, None if it makes no step."""
         start = self._steps_now() if system else self._pl_position
         delta = [(t - s) / self._spu(i) for i, (s, t) in enumerate(zip(start, target, strict=True))]
@@ -728,7 +743,7 @@ class GrblEmulator(PtyEmulator):
         rapid_rate = _limit_by_axis_maximum([self.settings[110 + i] / 60.0 for i in range(len(unit))], unit)
         rapid = rate <= 0.0 and not system
         b = _Block(list(start), list(target), length, length, accel, rapid_rate,
-                   rapid_rate if rapid else rate / 60.0, rapid, system)
+                   rapid_rate if rapid else rate / 60.0, rapid, system, no_feed_override=system or jog)
         if system:
             return b
         if self._blocks:  # the junction with the previous block: planner.c's junction deviation
@@ -747,7 +762,7 @@ class GrblEmulator(PtyEmulator):
                 b.max_junction_speed_sqr = max(MINIMUM_JUNCTION_SPEED ** 2,
                                                junction_accel * self.settings[11] * sin_theta_d2
                                                / (1.0 - sin_theta_d2))
-        nominal = b.nominal_speed()  # plan_compute_profile_parameters
+        nominal = b.nominal_speed(self._f_ovr, self._r_ovr)  # plan_compute_profile_parameters
         b.max_entry_speed_sqr = min(nominal, self._prev_nominal) ** 2
         b.max_entry_speed_sqr = min(b.max_entry_speed_sqr, b.max_junction_speed_sqr)
         self._prev_nominal, self._prev_unit, self._pl_position = nominal, unit, list(target)
@@ -1021,6 +1036,8 @@ class GrblEmulator(PtyEmulator):
                 self._feed_hold()
             elif c == _RESUME:
                 self._cycle_start()
+            elif 0x90 <= c <= 0x9D:
+                self._override(c)
             elif c == _JOG_CANCEL:
                 self._advance()
                 if self._jog and not self._hold:
@@ -1074,7 +1091,7 @@ class GrblEmulator(PtyEmulator):
                 self._auto_cycle_start()  # mc_line: a full planner starts the cycle
                 return
             target, rate, jog = self._waiting.popleft()
-            self._plan_line(target, rate)
+            self._plan_line(target, rate, jog=jog)
             if jog and not self._cycle and not self._hold and not self._alarm:
                 self._cycle = self._jog = True  # jog_execute: a jog starts at once, from Idle
             if not self._waiting and self._flow is None:
@@ -1096,6 +1113,7 @@ class GrblEmulator(PtyEmulator):
         mod.coord_select = 0
         self._coord_system = list(self.coords[0])
         self._wco_changed()
+        self._f_ovr, self._r_ovr, self._s_ovr = 100, 100, 100  # RESTORE_OVERRIDES_AFTER_PROGRAM_END
         self._send("[MSG:Pgm End]")
         self._reply(0)
 
@@ -1217,6 +1235,36 @@ class GrblEmulator(PtyEmulator):
         elif self._hold == 0:
             self._auto_cycle_start()
 
+    def _override(self, c: int) -> None:
+        """protocol.c's overrides: feed 0x90-0x94 (10-200 %), rapid 0x95-0x97 (100/50/25 %), spindle
+        0x99-0x9D (10-200 %); a motion override re-plans every block (plan_update_velocity_profile_
+        parameters, plan_cycle_reinitialize); each change puts Ov: in the next report."""
+        self._advance()
+        f, r, s = self._f_ovr, self._r_ovr, self._s_ovr
+        if c <= 0x94:
+            f = 100 if c == 0x90 else f + {0x91: 10, 0x92: -10, 0x93: 1, 0x94: -1}[c]
+            f = min(max(f, 10), 200)
+        elif c <= 0x97:
+            r = {0x95: 100, 0x96: 50, 0x97: 25}[c]
+        elif c >= 0x99:
+            s = 100 if c == 0x99 else s + {0x9A: 10, 0x9B: -10, 0x9C: 1, 0x9D: -1}[c]
+            s = min(max(s, 10), 200)
+        if (f, r, s) == (self._f_ovr, self._r_ovr, self._s_ovr):
+            return
+        self._ovr_count = 0
+        motion = (f, r) != (self._f_ovr, self._r_ovr)
+        self._f_ovr, self._r_ovr, self._s_ovr = f, r, s
+        if motion:
+            prev = SOME_LARGE_VALUE
+            for b in self._blocks:
+                nominal = b.nominal_speed(f, r)
+                b.max_entry_speed_sqr = min(min(nominal, prev) ** 2, b.max_junction_speed_sqr)
+                prev = nominal
+            self._prev_nominal = prev
+            self._st_update()
+            self._planned = 0
+            self._recalculate()
+
     def _status_report(self) -> None:
         """report.c's report_realtime_status."""
         if self._homing is not None:
@@ -1236,7 +1284,8 @@ class GrblEmulator(PtyEmulator):
         if mask & 2:
             planned = len(self._blocks) if self._homing is None else 0  # homing moves are outside the buffer
             fields.append(f"Bf:{self.planner_blocks - planned},{self.rx_buffer - len(self._rx)}")
-        speed = min(max(self._modal.speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
+        speed = self._modal.speed * 0.01 * self._s_ovr  # spindle_compute_pwm_value's clamp to $31..$30
+        speed = min(max(speed, self.settings[31]), self.settings[30]) if self._modal.spindle != 5 else 0.0
         rate = self._v * 60.0 if self._moving() or self._hold == 1 else 0.0
         fields.append(f"FS:{self._rate(rate)},{speed:.0f}")
         steps = self._steps_now()
@@ -1253,7 +1302,7 @@ class GrblEmulator(PtyEmulator):
             self._ovr_count -= 1
         else:
             self._ovr_count = (20 if busy else 10) - 1
-            fields.append("Ov:100,100,100")
+            fields.append(f"Ov:{self._f_ovr},{self._r_ovr},{self._s_ovr}")
             acc = {3: "S", 4: "C"}.get(self._modal.spindle, "") + ("F" if self._modal.coolant == 8 else "")
             if acc:
                 fields.append(f"A:{acc}")
