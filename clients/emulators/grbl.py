@@ -576,9 +576,9 @@ class GrblEmulator(PtyEmulator):
         stop = max(end, b.stop_rem)
         d = max(rem - stop, 0.0)
         if stop > end:  # a homing switch trips inside this ramp
-            t = d / v if acc == 0.0 else (math.sqrt(max(v * v + 2.0 * acc * d, 0.0)) - v) / acc
+            t = d / max(v, 1e-12) if acc == 0.0 else (math.sqrt(max(v * v + 2.0 * acc * d, 0.0)) - v) / acc
         else:
-            t = 2.0 * d / (v + v_end) if v + v_end > 0.0 else (0.0 if d <= 0.0 else math.inf)
+            t = 2.0 * d / (v + v_end) if v + v_end > 0.0 else 0.0  # at rest with nowhere to go: done
         if t > left:
             dd = min(max(v * left + 0.5 * acc * left * left, 0.0), d)
             b.millimeters = rem - dd
@@ -700,6 +700,7 @@ class GrblEmulator(PtyEmulator):
         self._blocks.clear()
         self._prof, self._recalc, self._v, self._planned = None, False, 0.0, 0
         self._cycle, self._hold, self._homing, self._jog = False, 0, None, False
+        self._decel_override = False
         self._pl_position = list(self._steps_done)
         self._prev_unit, self._prev_nominal = [0.0] * len(self.axes), 0.0
         self._gc_pos = self._units(self._steps_done)
