@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import collections
 import math
+import random
 import signal
 import subprocess
 import sys
@@ -845,3 +846,37 @@ def test_feed_and_rapid_overrides_replan_the_motion(grbl: Open) -> None:
     assert command(ser, "G0 X0") == ["ok"]
     clock.now += 2.0
     assert status(ser)["FS"] == f"{500 * 0.25:.0f},0"
+
+
+def test_random_streams_holds_and_overrides_always_come_to_rest() -> None:
+    """Drives the machine model directly (no pseudo-terminal, no thread), seeded: any mix of moves,
+    holds, resumes, overrides and jogs ends Idle, at the planner's position, never over 60 units/s."""
+    rng = random.Random(3)  # seed 3 met a hold that hung 1e-16 short of its stop (fixed)
+    for _ in range(20):
+        clock = FakeClock()
+        emu = GrblEmulator(clock=clock, settings={120: rng.choice([5, 10, 50]), 121: rng.choice([5, 10, 50])})
+        emu._power_up()
+
+        def feed(data: bytes, emu: GrblEmulator = emu) -> None:
+            for c in data:
+                emu._receive(bytes([c]))
+
+        feed(b"G91\n")
+        for _ in range(400):
+            r = rng.random()
+            if r < 0.5 and not emu._parser_busy():
+                x, y, f = rng.uniform(-2, 2), rng.uniform(-2, 2), rng.choice([60, 300, 3000])
+                feed(f"G1 X{x:.3f} Y{y:.3f} F{f}\n".encode())
+            elif r < 0.62:
+                feed(rng.choice([b"!", b"~", b"~", bytes([0x91]), bytes([0x92]), bytes([0x96]), b"$J=G91 X1 F200\n",
+                                 bytes([0x85])]))
+            clock.now += rng.choice([0.001, 0.01, 0.05, 0.2])
+            emu._service()
+            assert emu._v < 60.0
+        for _ in range(20000):
+            if emu.state == "Idle" and not emu._parser_busy():
+                break
+            feed(b"~")
+            clock.now += 0.05
+            emu._service()
+        assert emu.state == "Idle" and emu._steps_now() == emu._pl_position
