@@ -92,7 +92,7 @@ Covered:
   resume), ``M1`` (ignored), ``M2``/``M30`` (after the moves: G1 G54 G90 M5 M9, ``[MSG:Pgm End]``),
   ``M3``/``M4``/``M5`` with ``S``, ``M8``/``M9``, and the no-op modes ``G17``-``G19``, ``G40``,
   ``G49``, ``G61``, ``G80``, ``G94`` (``M7`` is ``error:20``, as in GRBL's default build). Errors 1,
-  2, 4, 9, 11, 20-31, 36, 38 as GRBL numbers and orders them (``G0 G1`` is 24, as
+  2, 4, 9, 11, 15, 16, 20-31, 36, 38 as GRBL numbers and orders them (``G0 G1`` is 24, as
   gc_execute_line finds the axis conflict first).
 - ``$`` help, ``$$`` (``$100=250.000`` style), ``$<n>=<value>`` (errors 2, 3, 4, 6, 8, 10, 12;
   ``$22=0`` also clears ``$20``), ``$X``, ``$G``, ``$I``, ``$#``, ``$H``, ``$RST=$``/``#``/``*`` (then
@@ -120,8 +120,10 @@ Where real GRBL differs, or may:
 - Timing: GRBL cuts its profiles into 10 ms segments of constant step rate (DT_SEGMENT, AMASS)
   and prepares up to 5 of them ahead, so a planner change or a hold takes effect up to ~50 ms
   late there, and its planner already counts the prepared distance as done; here every change
-  takes effect at once and speeds change continuously. GRBL computes in 32-bit floats, here
-  in doubles. Steps are interpolated linearly along each block, not Bresenham-timed.
+  takes effect at once and speeds change continuously. GRBL also frees a planner block once it
+  is prepared, so there ``Bf:`` and the ``ok`` of a line waiting for room come up to ~50 ms
+  earlier than here. GRBL computes in 32-bit floats, here in doubles. Steps are interpolated
+  linearly along each block, not Bresenham-timed.
 - Not emulated (``error:20``/``error:3`` here, accepted there): arcs ``G2``/``G3``, ``G38.x``
   probing, ``G43.1``, ``G93``, ``$C``, ``$SLP``, ``$I=``; the spindle stop and coolant override
   toggles; the safety door, probe and spindle are absent; ``$5`` (inverted limit pins) is
@@ -130,8 +132,9 @@ Where real GRBL differs, or may:
   switch travel, no bounce, no dual axes, no switch at the other end of an axis).
 - ``!`` or ``~`` during homing are dropped (GRBL acts on them once homing ends). A real reset
   also loses bytes arriving during it, and the ``?`` latency varies with the main loop's load.
-- A real alarm is often accompanied by a reset (hard limit, homing failures) that prints the
-  welcome; ``inject_alarm`` does not (reset yourself, as a host must anyway after 1 and 2).
+- ``inject_alarm`` with a code other than 1 and 2 prints only ``ALARM:<code>``; GRBL raises those
+  (3-9) with mc_reset, so its welcome follows (reset yourself). ``$N2=`` and beyond are
+  ``error:3`` here; GRBL does not check and writes past its two lines.
 - ``physical()`` uses the current ``$10x``: changing steps/unit rescales it, where a real arm's
   gearing would not change.
 - The pseudo-terminal has no baud rate: bytes arrive as fast as the host writes them, unless
