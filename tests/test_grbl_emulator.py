@@ -880,3 +880,25 @@ def test_random_streams_holds_and_overrides_always_come_to_rest() -> None:
             clock.now += 0.05
             emu._service()
         assert emu.state == "Idle" and emu._steps_now() == emu._pl_position
+
+
+def test_a_reset_in_hold_0_keeps_the_position_without_an_alarm(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    assert command(ser, "G1 X20 F300") == ["ok"]
+    clock.now += 1.0
+    ser.write(b"!")
+    assert status(ser)["state"] == "Hold:1"
+    ser.write(b"\x18")  # still decelerating: GRBL alarms, the position may be off
+    assert read_until(ser, "[MSG:'$H'|'$X' to unlock]") == ["ALARM:3", WELCOME, "[MSG:'$H'|'$X' to unlock]"]
+    assert command(ser, "$X") == ["[MSG:Caution: Unlocked]", "ok"]
+    assert command(ser, "G1 X20 F300") == ["ok"]
+    clock.now += 1.0
+    ser.write(b"!")
+    assert status(ser)["state"] == "Hold:1"  # (the '!' taken before the clock moves on)
+    clock.now += 0.6
+    assert status(ser)["state"] == "Hold:0"
+    held = emu.position()
+    ser.write(b"\x18")  # stopped: only the welcome, the position kept (the adapter's flush)
+    assert read_until(ser, WELCOME) == [WELCOME]
+    assert status(ser)["state"] == "Idle" and emu.position() == held
