@@ -586,9 +586,10 @@ def test_a_dtr_reset_zeroes_grbls_counters_not_the_arm(grbl: Open) -> None:
         assert emu.physical()["X"] == 106.0
 
 
-def home(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 0.05) -> list[str]:
-    """Send ``$H`` and run the fake clock until homing ends; return what came back."""
-    ser.write(b"$H\n")
+def home(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 0.05,
+         send: bytes = b"$H\n") -> list[str]:
+    """Send ``$H`` (``send``) and run the fake clock until homing ends; return what came back."""
+    ser.write(send)
     wait_for(lambda: emu.state != "Alarm" and emu.state != "Idle")
     states = set()
     while (state := emu.state) == "Home":
@@ -608,8 +609,7 @@ def test_homing_moves_the_arm_to_its_switches(grbl: Open) -> None:
     assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"  # homing enabled: GRBL starts locked
     assert command(ser, "G0 X1") == ["error:9"]
     start = clock.now
-    ser.write(b"?")  # GRBL's homing loop runs no real-time commands: the report comes after
-    out = home(emu, ser, clock)
+    out = home(emu, ser, clock, send=b"?$H\n")  # homing runs no real-time commands: the report comes after
     assert out[0] == "ok" and out[1].startswith("<Idle|")
     # Z first, then X and Y; X and Z home towards +, Y ($23 bit 1) towards -; $27 = 1 pull-off
     assert emu.physical() == {"X": 29.0, "Y": -19.0, "Z": 9.0}
