@@ -611,8 +611,9 @@ class GrblAdapter(SerialAdapter):
             self._assume_rest()
 
     def _operator_reset(self) -> None:
-        """In an alarm, because an operator asked: the reset GRBL may want before ``$X`` or ``$H``."""
-        if self._state == "Alarm" or self._reset_wanted:
+        """Because an operator asked: the reset GRBL wants after a limit alarm ("Reset to continue":
+        it reads nothing else) before ``$X`` or ``$H``. GRBL is at rest then: the reset loses nothing."""
+        if self._reset_wanted:
             self._reset()
 
     def _home(self) -> None:

@@ -242,7 +242,18 @@ def test_stop_mid_move_decelerates_along_the_path_in_time(client: ArmClient, ser
         assert not any(e["event"] == "fault" for e in events)  # the flush raised no alarm
         assert planned > 0.2  # it was moving fast: a real stop
         took = float(done["time"]) - asked
+        print(f"\nstop: planned {planned:.3f} s, done {took:.3f} s after the request "
+              f"({took / planned:.3f}x planned)")
         assert took <= 1.25 * planned + 0.1, (took, planned)
+        if NEW_EMULATOR:  # the arm's own motion, exactly: no axis ever reverses during the stop
+            tt, pp = trace_of(emu, arm)
+            now = time.monotonic() - (time.time() - asked)  # the request on the emulator's clock
+            seg = pp[tt >= now - 0.1]
+            d = np.sign(seg[min(len(seg) - 1, 20)] - seg[0])
+            assert not (np.diff(pp[tt >= now], axis=0) * d < 0).any(), "a joint reversed during the stop"
+            t_end = motion_window(tt[tt >= now - 1.0], pp[tt >= now - 1.0])[1]
+            print(f"stop: the arm at rest {t_end - now:.3f} s after the request (trace)")
+            assert t_end - now <= 1.25 * planned + 0.1
         before = (t > asked - 0.1) & (t <= asked)
         direction = np.sign(steps[before][-1] - steps[before][0])
         assert np.count_nonzero(direction) >= 2  # the joints were moving
@@ -285,3 +296,92 @@ def test_silence_withdraws_the_token(service: object, adapter_session: zenoh.Ses
         emu.responding = False
         wait_for(lambda: service._adapter_count(adapter.robot) == 0, timeout=5, what="the token withdrawn")  # type: ignore[attr-defined]
         assert adapter.fault and "does not answer" in adapter.fault
+
+
+def trace_of(emu: GrblEmulator, arm: robots.Robot) -> tuple[np.ndarray, np.ndarray]:
+    """The emulator's record of the arm's physical motion: times [s] and positions [deg], per actuator."""
+    emu_any: Any = emu
+    trace = emu_any.trace() if callable(emu_any.trace) else list(emu_any.trace)
+    cols = [emu.axes.index(a.axis) for a in arm.actuators.actuators]  # type: ignore[union-attr]
+    return np.array([t for t, _ in trace]), np.array([[p[c] for c in cols] for _, p in trace])
+
+
+def motion_window(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """When the motion recorded began and ended [s]."""
+    moving = np.flatnonzero(np.any(p != p[0], axis=1))
+    still = np.flatnonzero(np.any(p != p[-1], axis=1))
+    return float(t[max(moving[0] - 1, 0)]), float(t[still[-1] + 1])
+
+
+def peak_acceleration(t: np.ndarray, p: np.ndarray, window: float, dt: float = 0.002) -> np.ndarray:
+    """Per axis, the largest |acceleration| of the motion [deg/s^2]: the motion resampled every
+    ``dt``, then a least-squares parabola over each ``window`` [s] (a stepper moves in whole steps:
+    plain second differences of its position measure the steps, 1 step / dt^2, not the motion)."""
+    t0, t1 = motion_window(t, p)
+    grid = np.arange(t0 - window, t1 + window, dt)
+    q = np.column_stack([np.interp(grid, t, p[:, j]) for j in range(p.shape[1])])
+    half = round(window / dt / 2)
+    x = np.arange(-half, half + 1) * dt
+    weights = np.linalg.pinv(np.vander(x, 3))[0] * 2.0  # the fitted parabola's second derivative
+    acc = np.column_stack([np.convolve(q[:, j], weights[::-1], mode="valid") for j in range(q.shape[1])])
+    return np.max(np.abs(acc), axis=0)
+
+
+def actuator_limits_deg(arm: robots.Robot) -> tuple[np.ndarray, np.ndarray]:
+    m = np.abs(arm.actuators.M)
+    return np.degrees(m @ arm.limits.velocity), np.degrees(m @ arm.limits.acceleration)
+
+
+@pytest.mark.skipif(not NEW_EMULATOR, reason="needs the emulator with GRBL's planner and its trace (branch grbl-emu)")
+@pytest.mark.parametrize("rate_hz", [50.0, 200.0])
+def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, service: object,
+                                                          adapter_session: zenoh.Session, rate_hz: float) -> None:
+    arm = robots.load(ARM)
+    with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True):
+        wait_state(client, source="adapter", homed=True)
+        emu.clear_trace()  # type: ignore[attr-defined]
+        goal = np.array([1.5, 1.0, -2.3])
+        reply = client.move(ARM, goal.tolist(), rate_hz=rate_hz, wait=True, wait_timeout=20)
+        wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
+        t, p = trace_of(emu, arm)
+        t0, t1 = motion_window(t, p)
+        executed = t1 - t0
+        _, amax = actuator_limits_deg(arm)
+        peaks = {w: peak_acceleration(t, p, w) / amax for w in (0.06, 0.1)}
+        # the same measure of the plan itself, followed exactly by a stepper (whole steps): the floor
+        plan = client.plan(ARM, goal.tolist(), start=list(arm.neutral), rate_hz=rate_hz)
+        spd = np.array([a.steps_per_degree for a in arm.actuators.actuators])  # type: ignore[union-attr]
+        fine = np.arange(0.0, plan.duration + 1e-9, 0.002)  # steps at their own times, as a stepper makes them
+        ideal = np.rint(np.column_stack([np.interp(fine, plan.times, c) for c in plan.commands.T])) / spd
+        floor = {w: peak_acceleration(fine, ideal, w) / amax for w in peaks}
+        print(f"\n{rate_hz:g} Hz: planned {reply.duration:.3f} s, executed {executed:.3f} s "
+              f"({executed / reply.duration:.3f}x); peak acceleration / limit per axis, fitted over "
+              + "; ".join(f"{w * 1000:g} ms: {np.round(r, 3).tolist()} (the plan in whole steps: "
+                          f"{np.round(floor[w], 3).tolist()})" for w, r in peaks.items()))
+        assert 1.5 <= reply.duration <= 2.5
+        assert executed <= 1.10 * reply.duration + 0.05
+        assert np.all(peaks[0.1] <= 1.25)
+        assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
+
+
+@pytest.mark.skipif(not NEW_EMULATOR, reason="needs the emulator with homing switches (branch grbl-emu)")
+def test_homing_sets_the_position_from_home_pose(client: ArmClient, adapter_session: zenoh.Session,
+                                                 arm_copy: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+    """An arm with switches ([controller] homing = true, home_pose): ``$H``, then exact moves. GRBL
+    homes toward + (``$23=0``) and sets its position to ``-$27`` (the pull-off) there."""
+    base = robots.load(ARM)
+    switches = {"X": 20.0, "Y": 15.0, "Z": 25.0}  # [deg] from where the arm stands at power-up (its neutral)
+    home = np.array(base.neutral) + np.radians([switches[a] - 1.0 for a in "XYZ"])
+    folder = arm_copy(ARM, toml_edits=[("baud = 115200", "baud = 115200\nhoming = true\nhome_pose = ["
+                                        + ", ".join(f"{v!r}" for v in home.tolist()) + "]")])
+    arm = robots.load_folder(folder)
+    with GrblEmulator(home_switches=switches, settings={24: 300.0, 25: 1500.0, 27: 1.0}) as emu:  # type: ignore[call-arg]
+        adapter = GrblAdapter(adapter_session, arm, emu.port, home=True)
+        try:
+            assert adapter.homed and emu.settings[22] == 1 and "$H" in emu.lines
+            physical: Any = emu.physical()  # type: ignore[attr-defined]
+            assert np.allclose([physical[a] for a in "XYZ"], [switches[a] - 1.0 for a in "XYZ"], atol=0.12)
+            q = adapter.measure().position
+            assert np.allclose(q, home, atol=arm.actuators.actuators[0].resolution)
+        finally:
+            adapter.close()
