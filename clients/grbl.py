@@ -86,6 +86,7 @@ import zenoh
 
 from planning import JointState, plan_stop
 from robots import ArmdError, BadRequest, Robot, Stepper
+from robots.units import parse_angle
 
 from .adapter import START_TOL, ControllerFault, SerialAdapter, actuators_of
 from .trajectory_message import Command, FloatArray
@@ -206,6 +207,8 @@ class GrblAdapter(SerialAdapter):
             log.info("%s: segments of %.0f ms (GRBL's %d blocks must hold a stop's %.2f s of travel)", robot.name,
                      self.segment * 1000, PLANNER_BLOCKS, stop_time)
         self._spd = np.array([a.steps_per_degree for a in self.steppers])
+        if np.any(self._spd > 500.0):  # GRBL reports positions to 0.001 (N_DECIMAL_COORDVALUE_MM)
+            log.warning("%s: over 500 steps a degree: GRBL's reports (3 decimals) may be a step off", robot.name)
         self._index = [AXES.index(ax) for ax in self.axes]
         super().__init__(session, robot, port, baud=baud or int(robot.controller.get("baud", 115200)),  # type: ignore[call-overload]
                          timeout=0.02, write_timeout=timeout, prefix=prefix, state_hz=state_hz,
@@ -251,9 +254,14 @@ class GrblAdapter(SerialAdapter):
 
     @staticmethod
     def _pose_steps(robot: Robot, pose: object, name: str) -> np.ndarray:
-        if not isinstance(pose, Sequence) or len(pose) != robot.nq:
-            raise BadRequest(f"{robot.name}: [controller] {name} must list {robot.nq} joint angles [rad]", field=name)
-        q = robot.joint_vector(list(pose), name)
+        """A ``[controller]`` pose (joint angles [rad], numbers or like ``"pi/2"``) as actuator steps."""
+        try:
+            if isinstance(pose, str) or not isinstance(pose, Sequence) or len(pose) != robot.nq:
+                raise ValueError("not a list")
+            q = robot.joint_vector([parse_angle(v) for v in pose], name)
+        except ValueError:
+            raise BadRequest(f"{robot.name}: [controller] {name} must list {robot.nq} joint angles [rad] (numbers, "
+                             f"or like 'pi/2'), got {pose!r}", field=name) from None
         if not robot.limits.contains(q, tol=1e-9):
             raise BadRequest(f"{robot.name}: [controller] {name} is outside the limits: "
                              f"{robot.limits.violations(q, tol=1e-9)[0].message}", field=name)

@@ -99,8 +99,16 @@ def test_move_refused_until_an_operator_says_where_the_arm_is(client: ArmClient,
         assert moves and all(ln.startswith("G53G1") for ln in moves)  # machine coordinates, every line
 
 
-def test_assume_rest_at_start_and_a_rest_pose_of_its_own(client: ArmClient, service: object,
+def test_assume_rest_at_start_and_a_rest_pose_of_its_own(client: ArmClient, service: object, arm_copy: Any,
                                                          adapter_session: zenoh.Session) -> None:
+    folder = arm_copy(ARM, toml_edits=[("baud = 115200", 'baud = 115200\nrest_pose = [0.1, "pi/2", -1.0]')])
+    with GrblEmulator() as emu:
+        adapter = GrblAdapter(adapter_session, robots.load_folder(folder), emu.port, assume_rest=True)
+        try:
+            assert adapter.homed
+            assert np.allclose(adapter.measure().position, [0.1, np.pi / 2, -1.0], atol=1e-3)
+        finally:
+            adapter.close()
     arm = robots.load(ARM)
     with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True) as adapter:
         assert adapter.homed
