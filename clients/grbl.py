@@ -65,10 +65,19 @@ still sends ``!``.
 
 Errors and alarms: ``error:N`` and ``ALARM:N`` are reported with GRBL's documented meanings (its
 doc/csv tables). An error aborts the trajectory (the feed-hold stop above; the position is kept).
-An alarm means the position is lost or the arm hit a limit: the trajectory is aborted, ``homed``
-becomes False, and the adapter sends neither ``$X`` nor a reset by itself. Only an operator's
-unlock clears it: ``home`` (a reset if GRBL wants one, then ``$H``) or ``assume_rest`` (a reset if
-GRBL wants one, then ``$X`` because the operator said the arm is at rest).
+An alarm means the position is lost or the arm hit a limit: the trajectory is aborted (a
+``fault`` event with the alarm's meaning), ``homed`` becomes False, and the adapter sends neither
+``$X`` nor a reset by itself. GRBL still answers, so the adapter then reports ``recovered`` and
+keeps its token: ``move`` answers ``position_unknown`` (not ``no_adapter``) and the unlock can
+reach it. Only an operator's unlock clears it: ``home`` (a reset if GRBL wants one after a limit
+alarm, "Reset to continue", then ``$H``) or ``assume_rest`` (the same reset, then ``$X`` because
+the operator said the arm is at rest).
+
+robot.toml, ``[controller]``: ``homing = true`` (the arm has homing switches wired to GRBL; the
+adapter sets ``$22=1``; GRBL's other homing settings, ``$23``-``$27``, are the board's),
+``home_pose = [...]`` (joint angles [rad] GRBL's homing cycle leaves the arm at, pull-off
+included; needed with ``homing``), ``rest_pose = [...]`` (joint angles [rad] an operator
+confirms with ``--assume-rest``; default: the arm's neutral). Angles as numbers or like ``"pi/2"``.
 """
 
 from __future__ import annotations
