@@ -1,24 +1,83 @@
 """The GRBL adapter: stepper arms on an Arduino running GRBL 1.1 (seed 002's arm).
 
-``armd adapter grbl ROBOT --port /dev/ttyACM0 [--baud 115200]``. The port may be any
-pyserial URL.
+``armd adapter grbl ROBOT --port /dev/ttyACM0 [--baud B]``. The port may be any pyserial URL;
+the baud rate defaults to the arm's ``[controller] baud`` (GRBL 1.1: 115200).
 
 Joint i's stepper is GRBL axis X, Y or Z (the actuator map's ``axis``), in degrees of the
-actuator angle (GRBL's "mm" are degrees here). On connect the adapter waits for GRBL's
-welcome (or resets it), sets ``$100..$102`` (steps per degree, from the micro-step
-settings), ``$110..$112`` and ``$120..$122`` (rates and accelerations a little above the
-joints' limits, so GRBL's own planner never changes the timing armd planned), checks each
-``ok``, and reads the machine position. GRBL's machine zero is the joints' zero: start GRBL
-with the arm at q = 0 (or home it there).
+actuator angle (GRBL's "mm" are degrees here).
 
-A trajectory is streamed as one ``G1`` segment per sample, each to that sample's position
-in whole micro-steps at the feed rate that takes one period (samples with no whole step to
-make are folded into the next segment), with character-counting flow
-control: the bytes of unacknowledged lines never exceed GRBL's 128-byte receive buffer.
-``error:N`` or ``ALARM:N`` aborts the trajectory (feed hold, then a reset to flush GRBL's
-buffer) and is reported. A newer trajectory (a stop, say) replaces the running one the same
-way: feed hold ``!``, wait for the hold to complete, soft reset (position kept), stream the
-new one from where the arm is. ``?`` status reports give the position the state reports.
+Where the arm is. Opening the port resets an Arduino (its DTR line), and GRBL restarts with
+its machine position at 0 wherever the arm stands; GRBL has no command that sets the machine
+position except homing. So the adapter never assumes it: it starts with ``homed = False`` (the
+state says so, ``move`` answers ``position_unknown``) until one of
+
+- homing: ``$H``, for an arm whose robot.toml says it has switches (``[controller] homing =
+  true``, ``home_pose = [...]``: the joint angles after GRBL's homing cycle, pull-off included);
+  ``armd unlock ROBOT --home`` (or the constructor's ``home=True``);
+- an operator's word that the arm is at its rest pose (``[controller] rest_pose``, else the
+  arm's neutral): ``armd unlock ROBOT --assume-rest``, or ``assume_rest=True`` at start.
+
+Either sets an adapter-side offset, in whole micro-steps per axis, between GRBL's machine
+position and the actuators' (``actuator steps = GRBL steps + offset``): GRBL's own frame is
+left alone, so nothing here depends on work offsets, and GRBL's whole-step positions stay whole.
+Every move is in machine coordinates (``G53`` on every line), positions are read as ``MPos``
+(``$10=1``, set by the adapter), so a stored ``G54``-``G59`` or ``G92`` offset does not shift the
+arm; the adapter writes none (``G10`` would write EEPROM, ``G92`` would be a work offset again).
+
+Set-up: wait for GRBL's welcome (a board that says nothing within 3 s, even after a reset, is a
+:class:`~clients.adapter.ControllerFault` naming the port); read ``$$``; write only the settings
+that differ, then read ``$$`` again and refuse to start, saying which, if GRBL did not take one:
+
+- ``$100+i``: micro-steps per degree; ``$110+i`` [deg/min] and ``$120+i`` [deg/s^2]: the actuator's
+  velocity and acceleration bound (``|M| @`` the joints' limits). GRBL's planner never exceeds
+  them on any axis, so each block it runs moves every joint within its limits;
+- ``$11`` junction deviation [deg] = ``min($12x) * T^2 / 8`` with ``T`` the segment time: the speed
+  GRBL keeps through a junction of angle ``phi`` is ``v^2 = 8 a delta / phi^2`` (small angles), so
+  each axis' velocity step at a junction, ``v * phi``, is at most ``a T``: what the acceleration
+  limit gives over one segment. Sharper corners are slowed down, never taken faster. (A
+  trajectory from rest is a straight line in joint space, whose only corners are the micro-step
+  rounding of the segment ends: those GRBL takes at full speed.)
+- ``$10=1`` (MPos in reports), ``$13=0`` (reports in "mm"), and with homing ``$22=1``.
+
+Streaming, so that GRBL's own planner executes the plan: the trajectory is resampled into
+segments of about ``segment`` seconds (the last one ends exactly at the final sample's whole-step
+position), each a ``G53 G1`` to its end's whole-step position at its average speed (``F``, deg/min).
+GRBL plans up to 15 blocks ahead and always keeps the distance to stop within them; with 60 ms
+segments that is 0.9 s of motion, far more than the ``v / 2a`` a stop needs (0.25 s at 1 rad/s,
+2 rad/s^2), so it never slows down for want of blocks, while each block's speed changes at
+GRBL's acceleration (at most the limit). (An arm whose ``v / 2a`` exceeds 12 segments gets
+longer segments.) Measured on the emulator with GRBL's planner (tests/test_adapter_grbl.py): a
+2 s move of gupta3 runs 1.056 x its planned time (GRBL reaches each segment's speed at its
+acceleration, so it lags the plan by about one segment's time at the start and at the end), its
+peak acceleration is 1.09 x the limit fitted over 40 ms, where the plan itself, stepped,
+measures 1.11 x (the steps: GRBL's own is 1.0 by construction); a stop ends in about 0.8 x the
+Ruckig stop's time, no joint reversing. Character counting keeps the bytes of unacknowledged
+lines within GRBL's 128-byte receive buffer. A move is done when GRBL reports ``Idle`` (a report
+after the last ``ok``) at the final position, to the step.
+
+Stops (an estop, a ``stop``, a fault, a new move while one runs): feed hold ``!`` (GRBL
+decelerates along the path at ``$12x``: no joint reverses), status reports until ``Hold:0``, then a
+soft reset to empty GRBL's buffers (in ``Hold:0`` it keeps the position and raises no alarm; in
+``Hold:1`` it would raise ALARM:3), welcome, ``G21 G90 G94``. A new move runs after that only if it
+starts within ``START_TOL`` of where the arm was held; else it is rejected with the reason (the
+client plans again from rest). An estop while the position is unknown or the adapter faulted
+still sends ``!``.
+
+Errors and alarms: ``error:N`` and ``ALARM:N`` are reported with GRBL's documented meanings (its
+doc/csv tables). An error aborts the trajectory (the feed-hold stop above; the position is kept).
+An alarm means the position is lost or the arm hit a limit: the trajectory is aborted (a
+``fault`` event with the alarm's meaning), ``homed`` becomes False, and the adapter sends neither
+``$X`` nor a reset by itself. GRBL still answers, so the adapter then reports ``recovered`` and
+keeps its token: ``move`` answers ``position_unknown`` (not ``no_adapter``) and the unlock can
+reach it. Only an operator's unlock clears it: ``home`` (a reset if GRBL wants one after a limit
+alarm, "Reset to continue", then ``$H``) or ``assume_rest`` (the same reset, then ``$X`` because
+the operator said the arm is at rest).
+
+robot.toml, ``[controller]``: ``homing = true`` (the arm has homing switches wired to GRBL; the
+adapter sets ``$22=1``; GRBL's other homing settings, ``$23``-``$27``, are the board's),
+``home_pose = [...]`` (joint angles [rad] GRBL's homing cycle leaves the arm at, pull-off
+included; needed with ``homing``), ``rest_pose = [...]`` (joint angles [rad] an operator
+confirms with ``--assume-rest``; default: the arm's neutral). Angles as numbers or like ``"pi/2"``.
 """
 
 from __future__ import annotations
@@ -28,22 +87,102 @@ import logging
 import math
 import re
 import time
+from collections.abc import Sequence
 
 import numpy as np
 import serial
 import zenoh
 
-from planning import JointState
-from robots import BadRequest, Robot, Stepper
+from planning import JointState, plan_stop
+from robots import ArmdError, BadRequest, Robot, Stepper
+from robots.units import parse_angle
 
-from .adapter import ControllerFault, SerialAdapter, actuators_of
-from .trajectory_message import Command
+from .adapter import START_TOL, ControllerFault, SerialAdapter, actuators_of
+from .trajectory_message import Command, FloatArray
 
 log = logging.getLogger("armd.grbl")
 
 RX_BUFFER = 128  # [bytes] GRBL's serial receive buffer
+PLANNER_BLOCKS = 15  # GRBL's look-ahead (BLOCK_BUFFER_SIZE 16, one kept free)
+LINE_MAX = 79  # [characters] GRBL's line buffer
 AXES = "XYZABC"
-_STATUS = re.compile(r"<([A-Za-z]+(?::\d)?)\|MPos:([-\d.,]+)")  # state with its sub-state: Hold:0
+SEGMENT = 0.06  # [s] the time of one streamed segment (resampled from the trajectory)
+WELCOME_S = 3.0  # [s] how long GRBL may take to print its welcome (an Arduino boots in ~1 s)
+HOMING_S = 120.0  # [s] how long a homing cycle may take
+HOLD_S = 1.0  # [s] a feed hold may take this long more than the planned stop
+STATUS_EVERY = 0.01  # [s] the status requests' period while waiting for GRBL
+_STATUS = re.compile(r"<([A-Za-z]+)(?::(\d))?\|(MPos|WPos):([-\d.,]+)")
+_SETTING = re.compile(r"\$(\d+)=(-?[\d.]+)")
+_MODES = "G21G90G94"  # mm (degrees here), absolute, units per minute: after every reset
+
+# GRBL 1.1's codes and meanings (gnea/grbl doc/csv/error_codes_en_US.csv, alarm_codes_en_US.csv)
+ERRORS = {
+    1: "Expected command letter: G-code words consist of a letter and a value. Letter was not found.",
+    2: "Bad number format: missing the expected G-code word value or numeric value format is not valid.",
+    3: "Invalid statement: Grbl '$' system command was not recognized or supported.",
+    4: "Value < 0: negative value received for an expected positive value.",
+    5: "Setting disabled: homing cycle failure. Homing is not enabled via settings.",
+    6: "Value < 3 usec: minimum step pulse time must be greater than 3usec.",
+    7: "EEPROM read fail. Using defaults: auto-restoring affected EEPROM to default values.",
+    8: "Not idle: Grbl '$' command cannot be used unless Grbl is IDLE.",
+    9: "G-code lock: G-code commands are locked out during alarm or jog state.",
+    10: "Homing not enabled: soft limits cannot be enabled without homing also enabled.",
+    11: "Line overflow: max characters per line exceeded. Received command line was not executed.",
+    12: "Step rate > 30kHz: Grbl '$' setting value cause the step rate to exceed the maximum supported.",
+    13: "Check Door: safety door detected as opened and door state initiated.",
+    14: "Line length exceeded: build info or startup line exceeded EEPROM line length limit.",
+    15: "Travel exceeded: jog target exceeds machine travel. Jog command has been ignored.",
+    16: "Invalid jog command: jog command has no '=' or contains prohibited g-code.",
+    17: "Setting disabled: laser mode requires PWM output.",
+    20: "Unsupported command: unsupported or invalid g-code command found in block.",
+    21: "Modal group violation: more than one g-code command from same modal group found in block.",
+    22: "Undefined feed rate: feed rate has not yet been set or is undefined.",
+    23: "G-code command in block requires an integer value.",
+    24: "More than one g-code command that requires axis words found in block.",
+    25: "Repeated g-code word found in block.",
+    26: "No axis words found in block for g-code command or current modal state which requires them.",
+    27: "Line number value is invalid.",
+    28: "G-code command is missing a required value word.",
+    29: "G59.x work coordinate systems are not supported.",
+    30: "G53 only allowed with G0 and G1 motion modes.",
+    31: "Axis words found in block when no command or current modal state uses them.",
+    32: "G2 and G3 arcs require at least one in-plane axis word.",
+    33: "Motion command target is invalid.",
+    34: "Arc radius value is invalid.",
+    35: "G2 and G3 arcs require at least one in-plane offset word.",
+    36: "Unused value words found in block.",
+    37: "G43.1 dynamic tool length offset is not assigned to configured tool length axis.",
+    38: "Tool number greater than max supported value.",
+}
+ALARMS = {
+    1: "Hard limit: hard limit has been triggered. Machine position is likely lost due to sudden halt. "
+       "Re-homing is highly recommended.",
+    2: "Soft limit: G-code motion target exceeds machine travel. Machine position retained. Alarm may be safely "
+       "unlocked.",
+    3: "Abort during cycle: reset while in motion. Machine position is likely lost due to sudden halt. Re-homing "
+       "is highly recommended.",
+    4: "Probe fail: probe is not in the expected initial state before starting probe cycle.",
+    5: "Probe fail: probe did not contact the workpiece within the programmed travel for G38.2 and G38.4.",
+    6: "Homing fail: the active homing cycle was reset.",
+    7: "Homing fail: safety door was opened during homing cycle.",
+    8: "Homing fail: pull off travel failed to clear limit switch. Try increasing pull-off setting or check "
+       "wiring.",
+    9: "Homing fail: could not find limit switch within search distances. Try increasing max travel, decreasing "
+       "pull-off distance, or check wiring.",
+    10: "Homing fail: second dual axis limit switch failed to trigger within configured search distance after "
+        "first.",
+}
+
+
+def describe(line: str) -> str:
+    """``error:N`` or ``ALARM:N`` with GRBL's documented meaning."""
+    kind, _, code = line.partition(":")
+    table = ERRORS if kind == "error" else ALARMS
+    try:
+        meaning = table.get(int(code), "not a code GRBL 1.1 documents")
+    except ValueError:
+        meaning = "not a code GRBL 1.1 documents"
+    return f"{line} ({meaning})"
 
 
 class GrblAdapter(SerialAdapter):
@@ -51,41 +190,91 @@ class GrblAdapter(SerialAdapter):
 
     def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int | None = None,
                  prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, check_period: float = 0.5,
-                 margin: float = 1.25, serial_port: serial.SerialBase | None = None) -> None:
+                 assume_rest: bool = False, home: bool = False, segment: float = SEGMENT,
+                 serial_port: serial.SerialBase | None = None) -> None:
         self.steppers = actuators_of(robot, Stepper, "GRBL")
         self.axes = [a.axis for a in self.steppers]
-        if any(ax not in AXES for ax in self.axes):
-            raise BadRequest(f"GRBL axes are {', '.join(AXES)}; {robot.name} uses {', '.join(self.axes)}", field="axis")
+        if any(ax not in AXES for ax in self.axes) or len(set(self.axes)) != len(self.axes):
+            raise BadRequest(f"GRBL axes are distinct letters of {AXES}; {robot.name} uses {', '.join(self.axes)}",
+                             field="axis")
+        if not 0.01 <= segment <= 0.5:
+            raise BadRequest(f"segment must be in [0.01, 0.5] s, got {segment}", field="segment")
+        ctl = robot.controller
+        self.homing = ctl.get("homing", False) is True
+        if self.homing and "home_pose" not in ctl:
+            raise BadRequest(f"{robot.name}: [controller] homing = true needs home_pose", field="home_pose")
+        self.rest_steps = self._pose_steps(robot, ctl.get("rest_pose", list(robot.neutral)), "rest_pose")
+        self.home_steps = self._pose_steps(robot, ctl["home_pose"], "home_pose") if self.homing else None
+        if home and not self.homing:
+            raise BadRequest(f"{robot.name} has no homing switches ([controller] homing = true): it cannot home",
+                             field="home")
         self.timeout = timeout  # [s] how long the controller may take to answer (the port's reads poll)
+        # GRBL must always hold the distance to stop: 15 blocks, less the running one and a margin
+        stop_time = float(np.max(robot.limits.velocity / (2.0 * robot.limits.acceleration)))  # [s] of travel
+        self.segment = max(segment, stop_time / (PLANNER_BLOCKS - 3))
+        if self.segment > segment:
+            log.info("%s: segments of %.0f ms (GRBL's %d blocks must hold a stop's %.2f s of travel)", robot.name,
+                     self.segment * 1000, PLANNER_BLOCKS, stop_time)
+        self._spd = np.array([a.steps_per_degree for a in self.steppers])
+        if np.any(self._spd > 500.0):  # GRBL reports positions to 0.001 (N_DECIMAL_COORDVALUE_MM)
+            log.warning("%s: over 500 steps a degree: GRBL's reports (3 decimals) may be a step off", robot.name)
+        self._index = [AXES.index(ax) for ax in self.axes]
         super().__init__(session, robot, port, baud=baud or int(robot.controller.get("baud", 115200)),  # type: ignore[call-overload]
                          timeout=0.02, write_timeout=timeout, prefix=prefix, state_hz=state_hz,
                          check_period=check_period, serial_port=serial_port)
+        self.position_source = "measured"
+        self.homed = False
+        self.lost = "GRBL restarts with its position at 0 when the port opens"  # why homed is False
+        self._offset = np.zeros(len(self.axes), dtype=np.int64)  # actuator steps = GRBL steps + offset
         self._buffer = b""
         self._trouble: str | None = None
         self._pending: collections.deque[int] = collections.deque()  # lengths of unacknowledged lines
-        self._queue: list[bytes] = []  # lines of the running trajectory not sent yet
-        self._sent_index = -1
+        self._queue: collections.deque[bytes] = collections.deque()  # lines of the running trajectory not sent yet
         self._state = "Unknown"
-        self._mpos = np.zeros(len(self.axes))
+        self._sub: str | None = None  # Hold:0 / Hold:1's digit
+        self._fresh = False  # a status report came after the last ok (and after the last feed hold)
+        self._steps = np.zeros(len(self.axes), dtype=np.int64)  # GRBL's machine position [steps]
         self._last_status = 0.0
-        self._welcome(reset_first=False)
-        lim = robot.limits
-        settings: list[tuple[int, float]] = []
-        for j, (act, ax) in enumerate(zip(self.steppers, self.axes, strict=True)):
-            i = AXES.index(ax)
-            row = robot.actuators.M[j]
-            vmax = float(np.abs(row) @ lim.velocity)  # actuator angle rate bound [rad/s]
-            amax = float(np.abs(row) @ lim.acceleration)
-            settings += [(100 + i, act.steps_per_degree), (110 + i, math.degrees(vmax) * 60 * margin),
-                         (120 + i, math.degrees(amax) * margin)]
-        for key, value in settings:
-            self._command(f"${key}={value:.4f}")
-        self._command("G90")
-        self._poll_status(wait=True)
-        self._q = self._joints(self._mpos)
+        self._asked = 0.0
+        self._reset_wanted = False  # GRBL said "Reset to continue"
+        self._holding: float | None = None  # a feed hold is under way: its deadline
+        self._streaming = False
+        self._t_stream = 0.0  # [s] the trajectory's time when its streaming began (after a stop)
+        self._target: np.ndarray | None = None  # [GRBL steps] where the running trajectory ends
         self._v = np.zeros(robot.nq)
         self._a = np.zeros(robot.nq)
+        try:
+            self._welcome(reset_first=False)
+            self._configure()
+            self._poll_status(wait=True)
+            if self._state != "Alarm":
+                self._command(_MODES)
+            if home:
+                self._home()
+            elif assume_rest:
+                self._assume_rest()
+        except BaseException:
+            self.serial.close()
+            raise
+        if not self.homed:
+            log.warning("%s: position unknown (%s): home it or confirm its rest pose (armd unlock %s) before moving "
+                        "it", robot.name, self.lost, robot.name)
         self.activate()
+
+    @staticmethod
+    def _pose_steps(robot: Robot, pose: object, name: str) -> np.ndarray:
+        """A ``[controller]`` pose (joint angles [rad], numbers or like ``"pi/2"``) as actuator steps."""
+        try:
+            if isinstance(pose, str) or not isinstance(pose, Sequence) or len(pose) != robot.nq:
+                raise ValueError("not a list")
+            q = robot.joint_vector([parse_angle(v) for v in pose], name)
+        except ValueError:
+            raise BadRequest(f"{robot.name}: [controller] {name} must list {robot.nq} joint angles [rad] (numbers, "
+                             f"or like 'pi/2'), got {pose!r}", field=name) from None
+        if not robot.limits.contains(q, tol=1e-9):
+            raise BadRequest(f"{robot.name}: [controller] {name} is outside the limits: "
+                             f"{robot.limits.violations(q, tol=1e-9)[0].message}", field=name)
+        return np.asarray(robot.actuators.commands(q), dtype=np.int64)
 
     # -- the wire ------------------------------------------------------------------------
 
@@ -102,7 +291,7 @@ class GrblAdapter(SerialAdapter):
             with self._io:
                 waiting = self.serial.in_waiting
                 chunk = self.serial.read(waiting) if waiting else b""
-        except serial.SerialException as e:
+        except (serial.SerialException, OSError) as e:
             raise ControllerFault(f"GRBL on {self.port}: read failed: {e}") from None
         self._buffer += chunk
         *lines, self._buffer = self._buffer.split(b"\n")
@@ -112,19 +301,32 @@ class GrblAdapter(SerialAdapter):
         if line == "ok":
             if self._pending:
                 self._pending.popleft()
+            self._fresh = False
         elif line.startswith("error:"):
             if self._pending:
                 self._pending.popleft()
-            self._trouble = f"GRBL answered {line} (see GRBL's error codes)"
+            self._fresh = False
+            self._trouble = f"GRBL on {self.port} answered {describe(line)}"
         elif line.startswith("ALARM:"):
-            self._trouble = f"GRBL raised {line}"
+            self.homed = False
+            self.lost = f"GRBL raised {describe(line)}"
+            self._state = "Alarm"
+            self._trouble = (f"GRBL on {self.port} raised {describe(line)}: the arm's position is not trusted; the "
+                             f"adapter sends no unlock nor reset by itself: home it or confirm its rest pose "
+                             f"(armd unlock {self.robot.name})")
+        elif line.startswith("[MSG:Reset to continue]"):
+            self._reset_wanted = True
         elif line.startswith("<"):
             m = _STATUS.match(line)
             if m:
-                self._state = m.group(1)
-                vals = [float(v) for v in m.group(2).split(",")]
-                self._mpos = np.array([vals[AXES.index(ax)] for ax in self.axes])
+                if m.group(3) != "MPos":
+                    self._trouble = f"GRBL on {self.port} reports WPos: someone changed $10 (the adapter set $10=1)"
+                    return
+                self._state, self._sub = m.group(1), m.group(2)
+                vals = [float(v) for v in m.group(4).split(",")]
+                self._steps = np.rint(np.array([vals[i] for i in self._index]) * self._spd).astype(np.int64)
                 self._last_status = time.monotonic()
+                self._fresh = True
 
     def _pump(self) -> None:
         """Read and handle what GRBL said; raise an error or alarm it reported."""
@@ -135,7 +337,8 @@ class GrblAdapter(SerialAdapter):
             raise ControllerFault(trouble)
 
     def _welcome(self, *, reset_first: bool) -> None:
-        deadline = time.monotonic() + 3.0
+        """Wait for GRBL's welcome (resetting it if it says nothing); what came before it is dropped."""
+        deadline = time.monotonic() + WELCOME_S
         if reset_first:
             self._write(b"\x18")
         seen = ""
@@ -144,109 +347,329 @@ class GrblAdapter(SerialAdapter):
                 seen = line
                 if line.startswith("Grbl"):
                     self._pending.clear()
+                    self._queue.clear()
+                    self._fresh = False
                     return
-            if not reset_first and time.monotonic() > deadline - 2.0:
-                self._write(b"\x18")  # no welcome on opening: reset it
+                if line.startswith("ALARM:"):
+                    self._handle(line)
+            if not reset_first and time.monotonic() > deadline - WELCOME_S / 2:
+                self._write(b"\x18")  # no welcome on opening (a board that does not reset on open): reset it
                 reset_first = True
             time.sleep(0.005)
-        raise ControllerFault(f"no GRBL answers on {self.port} (last: {seen!r})")
+        raise ControllerFault(f"no GRBL answers on {self.port} (nothing like GRBL's welcome within "
+                              f"{WELCOME_S:g} s, even after a reset; last line: {seen!r}): is it a GRBL 1.1 board, "
+                              "at this baud rate?")
 
-    def _command(self, line: str) -> None:
-        """Send one line and wait for its ``ok`` (set-up only; streaming uses character counting)."""
+    def _command(self, line: str, timeout: float | None = None) -> list[str]:
+        """Send one line and wait for its ``ok`` (not while streaming); the lines GRBL printed before it."""
+        if len(line) > LINE_MAX:
+            raise BadRequest(f"GRBL line of {len(line)} characters (at most {LINE_MAX}): {line!r}", field="line")
         self._pending.append(len(line) + 1)
         self._write((line + "\n").encode())
-        deadline = time.monotonic() + self.timeout * 4
+        deadline = time.monotonic() + (timeout if timeout is not None else self.timeout * 4)
+        out: list[str] = []
         while self._pending:
-            self._pump()
-            time.sleep(0.001)
+            for got in self._lines():
+                if not got.startswith(("ok", "error:", "ALARM:", "<")):
+                    out.append(got)
+                self._handle(got)
+            if self._trouble:
+                trouble, self._trouble = self._trouble, None
+                raise ControllerFault(f"{trouble}, to {line!r}")
             if time.monotonic() > deadline:
                 raise ControllerFault(f"GRBL on {self.port} did not acknowledge {line!r}")
+            time.sleep(0.001)
+        return out
 
     def _poll_status(self, wait: bool = False) -> None:
         asked = time.monotonic()
+        self._asked = asked
         self._write(b"?")
         while wait and self._last_status < asked:
             self._pump()
-            time.sleep(0.001)
             if time.monotonic() - asked > self.timeout:
                 raise ControllerFault(f"GRBL on {self.port} does not answer status requests")
+            time.sleep(0.001)
 
-    def _joints(self, degrees: np.ndarray) -> np.ndarray:
-        steps = np.array([d * a.steps_per_degree for d, a in zip(degrees, self.steppers, strict=True)])
-        return self.robot.actuators.joints_from_commands(steps, tol=np.inf)
+    def _settings(self) -> dict[int, float]:
+        got: dict[int, float] = {}
+        for line in self._command("$$"):
+            m = _SETTING.fullmatch(line)
+            if m:
+                got[int(m.group(1))] = float(m.group(2))
+        return got
 
-    def _flush(self) -> None:
-        """Stop GRBL and empty its buffers, keeping its position: feed hold, wait, soft reset."""
-        self._write(b"!")
-        deadline = time.monotonic() + 5.0
-        while time.monotonic() < deadline:
-            self._poll_status(wait=True)
-            if self._state in ("Hold:0", "Idle", "Alarm"):  # not Hold:1: a reset while decelerating alarms
-                break
-            time.sleep(0.01)
+    def wanted_settings(self) -> dict[int, float]:
+        """The GRBL settings the adapter sets: ``{n: value}``."""
+        lim, amap = self.robot.limits, self.robot.actuators
+        want: dict[int, float] = {10: 1, 13: 0}
+        accels = []
+        for j, i in enumerate(self._index):
+            row = np.abs(amap.M[j])
+            vmax = math.degrees(float(row @ lim.velocity))  # [deg/s] the actuator angle's rate bound
+            amax = math.degrees(float(row @ lim.acceleration))  # [deg/s^2]
+            accels.append(amax)
+            want[100 + i] = float(self._spd[j])
+            want[110 + i] = vmax * 60.0
+            want[120 + i] = amax
+        want[11] = min(accels) * self.segment ** 2 / 8.0
+        if self.homing:
+            want[22] = 1
+        return want
+
+    def _configure(self) -> None:
+        """Write the settings that differ from ``wanted_settings``; read them all back."""
+        want = self.wanted_settings()
+
+        def off(have: dict[int, float], n: int) -> bool:  # GRBL prints 3 decimals
+            return n not in have or abs(have[n] - want[n]) > 0.0011 + 1e-6 * abs(want[n])
+
+        have = self._settings()
+        for n in sorted(want):
+            if off(have, n):
+                try:
+                    self._command(f"${n}={want[n]:.4f}".rstrip("0").rstrip("."))
+                except ControllerFault as e:
+                    raise ControllerFault(f"GRBL on {self.port} will not take ${n}={want[n]:.4f} ({e.message}): "
+                                          "refusing to start") from None
+        have = self._settings()
+        bad = [n for n in sorted(want) if off(have, n)]
+        if bad:
+            n = bad[0]
+            raise ControllerFault(f"GRBL on {self.port} will not take ${n}={want[n]:.4f} (it reads back "
+                                  f"{have.get(n)}): refusing to start" + (" (status reports would not carry MPos)"
+                                                                          if n == 10 else ""))
+
+    def _reset(self) -> None:
+        """Soft reset (only at rest: Idle or Hold:0, or in an alarm because an operator asked); wait for the
+        welcome; set the modes unless GRBL is in an alarm."""
         self._write(b"\x18")
-        self._welcome(reset_first=False)
-        self._pending.clear()
-        self._queue = []
-        if self._state == "Alarm":
-            self._command("$X")
-        self._command("G90")
+        self._welcome(reset_first=True)
+        self._reset_wanted = False
+        self._poll_status(wait=True)
+        if self._state != "Alarm":
+            self._command(_MODES)
+
+    # -- positions -----------------------------------------------------------------------
+
+    def _joints(self, grbl_steps: np.ndarray) -> FloatArray:
+        return self.robot.actuators.joints_from_commands(grbl_steps + self._offset, tol=np.inf)
+
+    def _line(self, grbl_steps: np.ndarray, feed: float) -> bytes:
+        deg = grbl_steps / self._spd
+        words = "".join(f"{ax}{d:.4f}" for ax, d in zip(self.axes, deg, strict=True))
+        line = f"G53G1{words}F{max(feed, 1.0):.1f}"
+        if len(line) > LINE_MAX:
+            raise BadRequest(f"GRBL line of {len(line)} characters (at most {LINE_MAX}): {line!r}", field="line")
+        return (line + "\n").encode()
+
+    def _segments(self, cmd: Command, start: np.ndarray) -> list[bytes]:
+        """The trajectory resampled: one ``G53 G1`` every ``segment`` seconds (the last one to the
+        final sample, a short tail merged into the segment before), each to its end's whole-step
+        position at its average speed; from GRBL's ``start`` [steps]."""
+        n = len(cmd.times)
+        m = max(1, round(self.segment * cmd.rate_hz))
+        ends = list(range(m, n - 1, m))
+        if ends and (n - 1) - ends[-1] < m / 2:
+            ends.pop()
+        ends.append(n - 1)
+        out = []
+        prev, k_prev = start, 0
+        for k in ends:
+            steps = cmd.commands[k] - self._offset
+            if np.array_equal(steps, prev):
+                continue  # no whole step to make: the next segment takes the time too (a G4 would drain GRBL)
+            dist = float(np.linalg.norm((steps - prev) / self._spd))  # [deg] GRBL's length of the block
+            out.append(self._line(steps, dist / ((k - k_prev) / cmd.rate_hz) * 60.0))
+            prev, k_prev = steps, k
+        return out
+
+    # -- stopping ------------------------------------------------------------------------
+
+    def _begin_hold(self, planned: float) -> None:
+        self._write(b"!")
+        self._fresh = False
+        self._holding = time.monotonic() + planned * 2.0 + HOLD_S
+        self._streaming = False
+
+    def _hold_complete(self) -> bool:
+        """Advance a feed hold: True once GRBL is at rest and its buffers are empty (soft reset in
+        Hold:0), or it is in an alarm (no reset: an operator must act)."""
+        assert self._holding is not None
+        self._pump()
+        if self._fresh and self._state == "Alarm":
+            self._holding = None
+            self._queue.clear()
+            self._pending.clear()
+            return True
+        if self._fresh and (self._state, self._sub) in (("Hold", "0"), ("Idle", None)):
+            self._holding = None
+            self._reset()  # keeps the position: GRBL is at rest
+            return True
+        if time.monotonic() > self._holding:
+            self._holding = None
+            raise ControllerFault(f"GRBL on {self.port} did not complete its feed hold (state {self._state}"
+                                  f"{':' + self._sub if self._sub else ''})")
+        if time.monotonic() - self._asked >= STATUS_EVERY:
+            self._poll_status()
+        return False
+
+    def _busy(self) -> bool:
+        return bool(self._queue or self._pending) or self._state not in ("Idle", "Unknown")
 
     # -- the Adapter hooks ----------------------------------------------------------------------
 
+    def admit(self, cmd: Command) -> None:
+        """A trajectory whose lines GRBL could not take (over 79 characters) is refused."""
+        widest = -np.max(np.abs(cmd.commands - self._offset), axis=0)  # the most characters a line may need
+        try:
+            self._line(widest, 99999.0)
+        except BadRequest as e:
+            raise BadRequest(f"{self.robot.name}: {e.message}", field="position") from None
+
+    def stop_command(self, ident: str) -> Command:
+        """A stop of kind ``stop``: ``execute`` runs it as GRBL's feed hold; its samples are the
+        Ruckig stop from the adapter's state (how long the stop should take)."""
+        with self._lock:
+            rate = self._cmd.rate_hz if self._cmd is not None else 50.0
+        state = self.measure()
+        try:
+            traj = plan_stop(self.robot, state, rate_hz=rate, clamp=True)
+            times, pos = traj.times, traj.position
+        except ArmdError:  # the position is unknown or outside the limits: a hold, with no plan to compare
+            times, pos = np.zeros(1), state.position[None, :]
+        z = np.zeros_like(pos)
+        return Command(ident, "stop", rate, times, pos, z, z.copy(), np.zeros(pos.shape, dtype=np.int64))
+
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
-        if first:
-            if self._pending or self._state not in ("Idle", "Unknown"):
-                self._flush()  # a running trajectory is replaced: stop it and empty GRBL's buffer
-            self._queue = self._segments(cmd)
-            self._sent_index = 0
         self._pump()
+        if first:
+            self._streaming = False
+            self._target = None
+            if cmd.kind == "stop" or self._busy() or self._holding is not None:
+                self._begin_hold(cmd.duration)  # a stop, or a new move replacing a running one: stop first
+        if self._holding is not None:
+            if not self._hold_complete():
+                return False
+            self._v = np.zeros(self.robot.nq)
+            self._a = np.zeros(self.robot.nq)
+            if cmd.kind == "stop":
+                return True
+        if not self._streaming:
+            return self._start(cmd, t)
+        k = min(max(int((t - self._t_stream) * cmd.rate_hz), 0), len(cmd.times) - 1)
+        self._v, self._a = cmd.velocity[k].copy(), cmd.acceleration[k].copy()
         # send ahead while GRBL's receive buffer has room (character counting)
         while self._queue and sum(self._pending) + len(self._queue[0]) <= RX_BUFFER:
-            line = self._queue.pop(0)
+            line = self._queue.popleft()
             self._pending.append(len(line))
             self._write(line)
-        k = min(int(t * cmd.rate_hz), len(cmd.times) - 1)
-        self._v, self._a = cmd.velocity[k].copy(), cmd.acceleration[k].copy()
-        if self._queue or self._pending:
+        if self._queue or self._pending or not self._fresh or self._state != "Idle":
+            if time.monotonic() - self._asked >= STATUS_EVERY:
+                self._poll_status()
             return False
-        self._poll_status(wait=True)
-        return self._state == "Idle" and t >= cmd.duration
+        assert self._target is not None
+        if not np.array_equal(self._steps, self._target):
+            raise ControllerFault(f"GRBL on {self.port} stopped at {self._steps.tolist()} steps, not at the "
+                                  f"trajectory's end {self._target.tolist()}")
+        self._v = np.zeros(self.robot.nq)
+        self._a = np.zeros(self.robot.nq)
+        self._streaming = False
+        return True
 
-    def _segments(self, cmd: Command) -> list[bytes]:
-        """One ``G1`` per sample after the first: to its whole-step position, in one period."""
-        dt = 1.0 / cmd.rate_hz
-        out = []
-        prev = cmd.commands[0]
-        elapsed = 0.0
-        for k in range(1, len(cmd.times)):
-            steps = cmd.commands[k]
-            elapsed += dt
-            if np.array_equal(steps, prev):
-                continue  # no whole step to make: the next segment takes the time too (a G4 would drain GRBL)
-            deg = [s / a.steps_per_degree for s, a in zip(steps.tolist(), self.steppers, strict=True)]
-            prev_deg = [s / a.steps_per_degree for s, a in zip(prev.tolist(), self.steppers, strict=True)]
-            dist = math.dist(deg, prev_deg)
-            words = "".join(f"{ax}{d:.4f}" for ax, d in zip(self.axes, deg, strict=True))
-            out.append(f"G1{words}F{max(dist / elapsed * 60.0, 1.0):.2f}\n".encode())
-            prev = steps
-            elapsed = 0.0
-        return out
+    def _start(self, cmd: Command, t: float) -> bool:
+        """Stream ``cmd`` if it starts where GRBL is (else reject it: the client plans again)."""
+        self._poll_status(wait=True)
+        here = self._joints(self._steps)
+        off = np.abs(cmd.position[0] - here)
+        if np.any(off > START_TOL):
+            j = int(np.argmax(off))
+            reason = (f"trajectory {cmd.id} starts {off[j]:.4f} rad from where {self.robot.joint_names[j]} was held "
+                      f"({here[j]:.4f} rad; at most {START_TOL}): plan it again from where the arm is")
+            with self._lock:
+                if self._cmd is cmd:
+                    self._finished = True
+            log.warning("%s: %s", self.robot.name, reason)
+            self.event("rejected", id=cmd.id, reason=reason)
+            return False
+        self._target = cmd.commands[-1] - self._offset
+        self._queue = collections.deque(self._segments(cmd, self._steps))
+        self._streaming = True
+        self._t_stream = t
+        return self.execute(cmd, t, False)
 
     def hold(self) -> None:
+        """Feed hold now (from any thread: one byte); the control loop completes it (:meth:`check`)."""
         self._write(b"!")
+        self._fresh = False
+        if self._holding is None:
+            self._holding = time.monotonic() + HOLD_S * 5
+        self._streaming = False
         self._v = np.zeros(self.robot.nq)
         self._a = np.zeros(self.robot.nq)
 
     def measure(self) -> JointState:
-        """The position GRBL last reported (a status report is asked for at every call: the
-        control loop parses the answer)."""
-        self._write(b"?")
-        return JointState(self._joints(self._mpos), self._v.copy(), self._a.copy())
+        """The position GRBL last reported, through the offset (a status report is asked for at
+        every call: the control loop parses the answer); velocity and acceleration as planned."""
+        if time.monotonic() - self._asked >= STATUS_EVERY:
+            self._write(b"?")
+            self._asked = time.monotonic()
+        return JointState(self._joints(self._steps), self._v.copy(), self._a.copy())
 
     def check(self) -> None:
         self._pump()
+        if self._holding is not None and not self._streaming:
+            with self._lock:
+                running = self._cmd is not None and not self._finished
+            if not running:  # a hold from a fault or an estop with nothing running: complete it here
+                while not self._hold_complete():
+                    time.sleep(0.002)
         self._poll_status(wait=True)
+
+    def unlock(self, how: str) -> None:
+        if self._holding is not None:
+            while not self._hold_complete():
+                time.sleep(0.002)
+        self._poll_status(wait=True)
+        if how == "home":
+            if not self.homing:
+                raise BadRequest(f"{self.robot.name} has no homing switches ([controller] homing = true in its "
+                                 "robot.toml): confirm its rest pose instead", field="how")
+            self._home()
+        else:
+            self._assume_rest()
+
+    def _operator_reset(self) -> None:
+        """Because an operator asked: the reset GRBL wants after a limit alarm ("Reset to continue":
+        it reads nothing else) before ``$X`` or ``$H``. GRBL is at rest then: the reset loses nothing."""
+        if self._reset_wanted:
+            self._reset()
+
+    def _home(self) -> None:
+        assert self.home_steps is not None
+        self._operator_reset()
+        log.info("%s: homing ($H)", self.robot.name)
+        self._command("$H", timeout=HOMING_S)
+        self._command(_MODES)
+        self._set_offset(self.home_steps, "homed ($H)")
+
+    def _assume_rest(self) -> None:
+        self._operator_reset()
+        if self._state == "Alarm":
+            log.warning("%s: GRBL is in an alarm: unlocking it ($X) because an operator said the arm is at rest",
+                        self.robot.name)
+            self._command("$X")
+            self._command(_MODES)
+        self._set_offset(self.rest_steps, "at its rest pose (an operator's word)")
+
+    def _set_offset(self, actuator_steps: np.ndarray, how: str) -> None:
+        self._poll_status(wait=True)
+        self._offset = actuator_steps - self._steps
+        self.homed = True
+        self.lost = ""
+        self._latest = JointState.at_rest(self._joints(self._steps))
+        log.info("%s: position known: %s; GRBL's machine position %s steps is the actuators' %s", self.robot.name,
+                 how, self._steps.tolist(), actuator_steps.tolist())
 
     def shutdown(self) -> None:
         try:
