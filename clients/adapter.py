@@ -95,6 +95,7 @@ def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
 class Adapter(ABC):
     kind = "adapter"
     tick = 0.005  # [s] the control loop's period; execute() decides what is due
+    run_tick = 0.005  # [s] its period while a trajectory runs
 
     def __init__(self, session: zenoh.Session, robot: Robot, *, prefix: str = "armd", state_hz: float = 50.0,
                  check_period: float = 0.5) -> None:
@@ -351,7 +352,7 @@ class Adapter(ABC):
             if now >= next_state:
                 next_state = now + self.state_period
                 self._publish_state()
-            self._stop.wait(self.tick)
+            self._stop.wait(self.run_tick if cmd is not None and not finished else self.tick)
 
     def finished(self, cmd: Command) -> None:
         """Called on the control loop when ``cmd`` is complete (the default: nothing)."""

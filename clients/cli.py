@@ -248,7 +248,7 @@ def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: o
     from clients.grbl import GrblAdapter
 
     return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
-                       serial_port=port)
+                       serial_port=port, assume_rest=args.assume_rest, home=args.home)
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -473,6 +473,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "[controller] baud)")
     p.add_argument("--state-dir", help="where the adapter keeps the arm's last pose (ssc32; default "
                    "$ARMD_STATE_DIR, else ~/.local/state/armd)")
+    known = p.add_mutually_exclusive_group()
+    known.add_argument("--assume-rest", action="store_true",
+                       help="grbl: the arm is at its rest pose now (I checked): its position is known")
+    known.add_argument("--home", action="store_true", help="grbl: run the homing cycle ($H) at start")
     p.set_defaults(func=cmd_adapter)
 
     p = sub.add_parser("router", help="run a standalone Zenoh router (no zenohd needed)")

@@ -42,6 +42,7 @@ The gripper, a separate channel, opens and closes on ``<prefix>/<robot>/gripper`
 
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import math
@@ -64,8 +65,22 @@ log = logging.getLogger("armd.ssc32")
 LINK_SHARE = 0.6  # of the link's bytes per second the stream may use
 MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: refused, the link is too slow)
 LEAD = 0.05  # [s] at least this long before the board reaches a move, the next one is sent
+MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine
+LATENESS_DECAY = 0.5  # per second: how fast the lead forgets a late pass of the control loop
 QP_TOL = 25.0  # [us] how far a QP answer may be from the model (QP answers in 10 us, the model rounds)
 T_MAX = 65.535  # [s] the longest T the board takes
+WINDOW_SHARE = 1.0  # a change of speed is kept within a * this * the time since the previous one
+FLOOR_SHARE = 0.5  # a move lasts at least the lead and this much of a period: the next one is sent a period later
+MAX_AHEAD = 4  # streamed samples a group move may pass over when the board is ahead
+RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
+
+
+def _on_piece(p0: FloatArray, t0: float, p1: FloatArray, t1: float, t: float) -> tuple[FloatArray, FloatArray]:
+    """On the linear piece from ``p0`` at ``t0`` to ``p1`` at ``t1``, held after: position and speed at ``t``."""
+    if t >= t1 or t1 <= t0:
+        return p1.copy(), np.zeros(len(p1))
+    v = (p1 - p0) / (t1 - t0)
+    return p0 + v * (max(t, t0) - t0), v
 
 
 def state_dir_default() -> Path:
@@ -79,6 +94,7 @@ def state_dir_default() -> Path:
 
 class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
+    run_tick = RUN_TICK
 
     def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int | None = None,
                  prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, query_period: float = 0.5,
@@ -101,7 +117,11 @@ class SSC32Adapter(SerialAdapter):
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
         self._t0 = self._t1 = now
         self._link_free = now  # [s] when the link has carried everything written so far
+        self._pieces: collections.deque[tuple[FloatArray, float, FloatArray, float]] = collections.deque(maxlen=256)
         self._k = 0  # the running trajectory's sample the board is heading to
+        self._settled = True  # the board heads for the last sample slowly enough to stop there
+        self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
+        self._seen_at = now
         self._stride = 1
         self._query: tuple[float, int] | None = None  # (when a QP was written, reply length)
         self._reply = b""
@@ -126,7 +146,12 @@ class SSC32Adapter(SerialAdapter):
         pulses = self._query_pulses()
         amap = self.robot.actuators
         if all(pulses > 0):
-            q = amap.joints_from_commands(pulses, tol=np.inf)
+            # QP answers in 10 us (the pulse / 10, truncated): the pose kept at the last stop, if
+            # the board still outputs it, is exact; else the middle of what QP allows
+            kept, _ = self._left_at()
+            exact = amap.command_values(kept)
+            q = kept if np.all((exact >= pulses - 0.5) & (exact < pulses + 10.5)) else \
+                amap.joints_from_commands(pulses + 5.0, tol=np.inf)
             lim = self.robot.limits
             if not lim.contains(q, tol=0.02):
                 bad = lim.violations(q, tol=0.02)
@@ -136,14 +161,13 @@ class SSC32Adapter(SerialAdapter):
             q = np.minimum(np.maximum(q, lim.lower), lim.upper)
             log.info("%s: the board outputs pulses already (%s us): adopted as it is",
                      self.robot.name, " ".join(str(int(p)) for p in pulses))
-            self._p0 = self._p1 = q
+            self._hold_at(q)
             return
         q, where = self._left_at()
         log.warning("%s: the SSC-32 outputs no pulses (just powered): a hobby servo's position is unknown until "
                     "its first pulse, so the arm JUMPS to %s at the servos' own speed now", self.robot.name, where)
         self._send(amap.commands(q), None)
-        self._p0 = self._p1 = q
-        self._t0 = self._t1 = time.monotonic()
+        self._hold_at(q)
 
     def _left_at(self) -> tuple[FloatArray, str]:
         """The pose the arm was last commanded to (kept in ``state_file``), else neutral."""
@@ -202,11 +226,15 @@ class SSC32Adapter(SerialAdapter):
             raise ControllerFault(f"SSC-32 on {self.port} does not answer QP ({reply!r})")
         return np.array([10.0 * b for b in reply])
 
-    def _send(self, pulses: np.ndarray, duration_ms: int | None) -> None:
+    def _line(self, pulses: np.ndarray, duration_ms: int | None) -> bytes:
+        """A group move of every channel: ``#<ch>P<pw>...[T<ms>]\\r``."""
         line = "".join(f"#{ch}P{int(pw)}" for ch, pw in zip(self.channels, pulses.tolist(), strict=True))
         if duration_ms is not None:
             line += f"T{duration_ms}"
-        self._write((line + "\r").encode())
+        return (line + "\r").encode()
+
+    def _send(self, pulses: np.ndarray, duration_ms: int | None) -> None:
+        self._write(self._line(pulses, duration_ms))
 
     def _line_bytes(self) -> int:
         """The bytes of one group move of every channel (the longest form)."""
@@ -214,61 +242,129 @@ class SSC32Adapter(SerialAdapter):
 
     # -- the model of the board ------------------------------------------------------------
 
+    def _hold_at(self, q: FloatArray) -> None:
+        """The model: the board holds ``q`` from now on (what came before is forgotten)."""
+        self._p0, self._p1 = q.copy(), q.copy()
+        self._t0 = self._t1 = time.monotonic()
+        self._pieces.clear()
+        self._pieces.append((self._p0, self._t0, self._p1, self._t1))
+
     def _at(self, t: float) -> tuple[FloatArray, FloatArray]:
-        """Where the board is at time ``t`` [s], and how fast it moves [rad/s]."""
-        if t >= self._t1 or self._t1 <= self._t0:
-            return self._p1.copy(), np.zeros(self.robot.nq)
-        v = (self._p1 - self._p0) / (self._t1 - self._t0)
-        return self._p0 + v * (max(t, self._t0) - self._t0), v
+        """Where the board is at time ``t`` [s] (now or later), and how fast it moves [rad/s]."""
+        return _on_piece(self._p0, self._t0, self._p1, self._t1, t)
 
-    def _duration(self, d: FloatArray, v0: FloatArray, t_nominal: float, window: float) -> float:
-        """The group move's time [s] for a displacement ``d`` [rad] started at speed ``v0``:
-        at least ``t_nominal``; every joint within its velocity limit (hard); the change of speed
-        within ``a * window`` per joint (where no time can keep it, the least violation)."""
-        u_hi = 1.0 / max(t_nominal, 1e-3)
+    def _was_at(self, t: float) -> FloatArray:
+        """Where the board was at time ``t`` [s], which may be a few pieces ago."""
+        for p0, t0, p1, t1 in reversed(self._pieces):
+            if t >= t0:
+                return _on_piece(p0, t0, p1, t1, t)[0]
+        return self._pieces[0][0].copy() if self._pieces else self._at(t)[0]
+
+    def _time_for(self, d: FloatArray, v0: FloatArray, c: FloatArray, cap: FloatArray | None, t_nominal: float,
+                  t_floor: float) -> tuple[float, float]:
+        """A group move's time [s] for a displacement ``d`` [rad] from speed ``v0`` [rad/s], and
+        by how much it breaks an acceleration limit (0: not at all; else the least it can).
+
+        In ``u = 1 / T`` each limit is an interval, since the move's speed is ``u * d``: every
+        joint's velocity limit and ``cap``, and ``t_floor`` [s] (the move must last until the
+        next one is sent: a board that arrives early stops), bound it from above (hard), its
+        change of speed within ``c`` [rad/s] from both sides. Within those, the time closest to
+        the schedule ``t_nominal``.
+        """
+        vmax = self._vmax if cap is None else np.minimum(self._vmax, cap)
         moving = np.abs(d) > 1e-12
+        u_hi = 1.0 / max(t_floor, 1e-3)
         if moving.any():
-            u_hi = min(u_hi, float(np.min(self._vmax[moving] / np.abs(d[moving]))))
-        c = self._amax * window
-        lo = np.full(len(d), -np.inf)
-        hi = np.full(len(d), np.inf)
-        lo[moving] = np.minimum((v0 - c)[moving] / d[moving], (v0 + c)[moving] / d[moving])
-        hi[moving] = np.maximum((v0 - c)[moving] / d[moving], (v0 + c)[moving] / d[moving])
-        still_ok = np.all(np.abs(v0[~moving]) <= c[~moving] * (1 + 1e-9))
-        u_lo = max(float(np.max(lo)), 1.0 / T_MAX)
-        u = min(u_hi, float(np.min(hi)))
-        if not (still_ok and u_lo <= u):  # no time keeps every joint's acceleration: the least violation
+            u_hi = min(u_hi, float(np.min(vmax[moving] / np.abs(d[moving]))))
+        if not np.all(np.abs(v0[~moving]) <= c[~moving] * (1 + 1e-9)):  # a joint with no way to go must stop
+            stopped = ~moving & (np.abs(v0) > c)
+            return 1.0 / u_hi, float(np.max((np.abs(v0[stopped]) - c[stopped]) / c[stopped]))
+        if not moving.any():
+            return max(t_nominal, t_floor), 0.0
+        dm, vm, cm = d[moving], v0[moving], c[moving]
+        ends = np.sort(np.stack([(vm - cm) / dm, (vm + cm) / dm]), axis=0)
+        u_lo = max(float(np.max(ends[0])), 1.0 / T_MAX)
+        u_top = min(u_hi, float(np.min(ends[1])))
+        if u_lo <= u_top:  # the schedule, where the limits allow it
+            return 1.0 / min(max(1.0 / max(t_nominal, 1e-3), u_lo), u_top), 0.0
 
-            def violation(x: float) -> float:
-                return float(np.max(np.abs(x * d - v0) / c))
+        def worst(x: float) -> float:
+            return float(np.max((np.abs(dm * x - vm) - cm) / cm))
 
-            a, b = 1.0 / T_MAX, u_hi
-            for _ in range(60):
-                m1, m2 = a + (b - a) / 3, b - (b - a) / 3
-                if violation(m1) <= violation(m2):
-                    b = m2
-                else:
-                    a = m1
-            u = (a + b) / 2
-            log.warning("%s: no group-move time keeps every acceleration limit (%.2f x): the least violation",
-                        self.robot.name, violation(u))
-        return 1.0 / u
+        lo, hi = 1.0 / T_MAX, u_hi
+        for _ in range(60):  # convex in u: a ternary search
+            m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
+            if worst(m1) <= worst(m2):
+                hi = m2
+            else:
+                lo = m1
+        u = (lo + hi) / 2
+        return 1.0 / u, max(worst(u), 0.0)
 
-    def _move_to(self, k: int, cmd: Command, t_nominal_end: float, window: float) -> None:
-        """Send the group move toward sample ``k`` of ``cmd``, to end no earlier than ``t_nominal_end``."""
-        now = time.monotonic()
-        nbytes = self._line_bytes()
-        arrival = max(now, self._link_free) + nbytes * 10.0 / self.baud  # the board starts it then
+    def _to_ms(self, T: float, d: FloatArray, v0: FloatArray, c: FloatArray, cap: FloatArray | None) -> int:
+        """``T`` [s] in whole milliseconds, rounded the way that keeps the limits (never faster)."""
+        vmax = self._vmax if cap is None else np.minimum(self._vmax, cap)
+        ms_min = max(1, math.ceil(float(np.max(np.abs(d) / vmax, initial=0.0)) * 1000.0 - 1e-6))
+
+        def violation(ms: int) -> float:
+            return float(np.max(np.abs(d * (1000.0 / ms) - v0) - c, initial=0.0))
+
+        ms = max(ms_min, round(T * 1000.0))
+        return min((m for m in (ms, ms + 1, ms - 1, ms + 2) if ms_min <= m <= 65535), key=violation)
+
+    def _stream(self, cmd: Command, now: float, first: bool, period: float, lead: float) -> None:
+        """Send the next group move of ``cmd``: toward the next streamed sample, or a later one
+        when the board is ahead and the next is too close to reach within the limits (its chord,
+        like every chord of the plan, is within them); toward the last sample, slowly enough to
+        stop there (``_settled`` once it is). Timed for when the board will have it: if this
+        thread was held up meanwhile, timed again."""
+        base = now + lead if first else max(self._t1, now)  # when the board reaches sample _k (the schedule)
+        arrival = max(now, self._link_free) + self._line_bytes() * 10.0 / self.baud  # the board starts it then
+        for _ in range(3):
+            k, ms, d, over = self._choose(cmd, arrival, base, period, lead)
+            line = self._line(cmd.commands[k], ms)
+            actual = max(time.monotonic(), self._link_free) + len(line) * 10.0 / self.baud
+            if abs(actual - arrival) <= 2e-4:
+                break
+            arrival = actual + 2e-4  # (the time to choose again)
+        if over * WINDOW_SHARE + WINDOW_SHARE - 1.0 > 1e-3:
+            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over): the least violation",
+                        self.robot.name, 100 * (over * WINDOW_SHARE + WINDOW_SHARE - 1.0))
+        written = time.monotonic()
+        arrival = max(written, self._link_free) + len(line) * 10.0 / self.baud
+        p0 = self._at(arrival)[0]
+        self._write(line)
+        self._p0, self._t0, self._p1, self._t1 = p0, arrival, cmd.position[k].copy(), arrival + ms / 1000.0
+        self._pieces.append((self._p0, self._t0, self._p1, self._t1))
+        self._k = k
+        stop = self._amax * WINDOW_SHARE * period  # a speed the board may stop from, at a move's end
+        self._settled = k == len(cmd.times) - 1 and bool(np.all(np.abs(d) * 1000.0 / ms <= stop * (1 + 1e-6) + 1e-9))
+
+    def _choose(self, cmd: Command, arrival: float, base: float, period: float,
+                lead: float) -> tuple[int, int, FloatArray, float]:
+        """The sample to head for and the move's time [ms], for a move the board starts at
+        ``arrival`` [s]; with the displacement from where the board is then, and the least
+        violation of an acceleration limit (0: none)."""
         p0, v0 = self._at(arrival)
-        q = cmd.position[k]
-        d = q - p0
-        T = self._duration(d, v0, t_nominal_end - arrival, window)
-        ms = max(1, round(T * 1000.0))
-        while np.any(np.abs(d) > self._vmax * (ms / 1000.0) * (1 + 1e-9)):  # rounding never makes it faster
-            ms += 1
-        ms = min(ms, 65535)
-        self._send(cmd.commands[k], ms)
-        self._p0, self._t0, self._p1, self._t1 = p0, arrival, q.copy(), arrival + ms / 1000.0
+        # the change of speed, over the time since the previous change (at most a period)
+        c = self._amax * WINDOW_SHARE * min(period, max(arrival - self._t0, 1e-3))
+        last = len(cmd.times) - 1
+        floor = lead + FLOOR_SHARE * period  # not reached before the next move is sent
+        best: tuple[float, int, float] | None = None
+        k = self._k
+        for _ in range(MAX_AHEAD):
+            k = min(k + self._stride, last)
+            # when the schedule has the board there (past the last sample, the plan holds it: a period more)
+            t_nominal = base + max(cmd.times[k] - cmd.times[self._k], period) - arrival
+            T, over = self._time_for(cmd.position[k] - p0, v0, c, None, t_nominal, floor)
+            if best is None or over < best[0] - 1e-9:
+                best = (over, k, T)
+            if over == 0.0 or k == last:
+                break
+        assert best is not None
+        over, k, T = best
+        d = cmd.position[k] - p0
+        return k, self._to_ms(T, d, v0, c, None), d, over
 
     # -- the Adapter hooks ----------------------------------------------------------------------
 
@@ -295,13 +391,29 @@ class SSC32Adapter(SerialAdapter):
             self._k = 0
             self._stride = self.stride_for(cmd)
         period = self._stride / cmd.rate_hz
-        lead = max(self.lead, period)
-        if self._k < last and (first or now >= self._t1 - lead):
-            k = min(self._k + self._stride, last)
-            base = now + lead if first else max(self._t1, now)
-            self._move_to(k, cmd, base + (cmd.times[k] - cmd.times[self._k]), period)
-            self._k = k
-        return self._k >= last and now >= self._t1
+        # the lead grows with how late this loop has run lately (a busy machine), up to MAX_LEAD
+        self._lateness *= LATENESS_DECAY ** max(now - self._seen_at, 0.0)
+        self._seen_at = now
+        lead = min(max(self.lead, period, 2.0 * self._lateness), max(MAX_LEAD, period))
+        if first:
+            self._settled = last == 0
+        link = max(self._link_free - now, 0.0) + self._line_bytes() * 10.0 / self.baud  # until the board has it
+        due = self._t1 - lead - link  # when the next move should be written
+        if (self._k < last or not self._settled) and (first or now >= due):
+            if not first:
+                self._lateness = max(self._lateness, now - due)
+                if now + link > self._t1 and self._k < last:  # the board got there first, and stopped
+                    self._stopped_late(cmd, now + link - self._t1)
+            self._stream(cmd, now, first, period, lead)
+        return self._k >= last and self._settled and now >= self._t1
+
+    def _stopped_late(self, cmd: Command, late: float) -> None:
+        """Said when the control loop ran so late (a stalled process) that the board finished its
+        move and held: a stop at the speed it had, which no command of the SSC-32 can soften."""
+        v = float(np.max(np.abs(self._p1 - self._p0) / max(self._t1 - self._t0, 1e-6) / self._vmax))
+        log.warning("%s: the adapter ran %.0f ms late: the board finished its move and held (from %.0f%% of a "
+                    "velocity limit); resuming from rest", self.robot.name, late * 1000, 100 * v)
+        self.event("late", id=cmd.id, late=late, speed_ratio=v)
 
     def finished(self, cmd: Command) -> None:
         self._save_pose()
@@ -377,15 +489,14 @@ class SSC32Adapter(SerialAdapter):
         q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
         if not self.robot.limits.contains(q, tol=0.02):
             return False
-        self._p0 = self._p1 = np.minimum(np.maximum(q, self.robot.limits.lower), self.robot.limits.upper)
-        self._t0 = self._t1 = time.monotonic()
+        self._hold_at(np.minimum(np.maximum(q, self.robot.limits.lower), self.robot.limits.upper))
         return True
 
     def _compare(self, pulses: FloatArray, asked: float, answered: float) -> None:
         """A QP answer against the model, anywhere between when it was asked and answered."""
         amap = self.robot.actuators
-        ts = np.linspace(asked, answered, 5)
-        model = np.array([amap.command_values(self._at(float(t))[0]) for t in ts])  # pulses [us]
+        ts = [t for _, t0, _, t1 in self._pieces for t in (t0, t1) if asked < t < answered]
+        model = np.array([amap.command_values(self._was_at(float(t))) for t in (asked, *ts, answered)])  # [us]
         lo, hi = model.min(axis=0) - QP_TOL, model.max(axis=0) + QP_TOL
         off = np.maximum(lo - pulses, pulses - hi)
         if np.any(off > 0):

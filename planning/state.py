@@ -79,6 +79,11 @@ def clamped(robot: Robot, state: JointState) -> JointState:
     the nearest state the limits allow. Coupled limits are not moved onto (the planner's gate
     reports a state outside them)."""
     lim = robot.limits
-    return JointState(np.minimum(np.maximum(np.nan_to_num(state.position), lim.lower), lim.upper),
-                      np.clip(np.nan_to_num(state.velocity), -lim.velocity, lim.velocity),
-                      np.clip(np.nan_to_num(state.acceleration), -lim.acceleration, lim.acceleration))
+    p = np.minimum(np.maximum(np.nan_to_num(state.position), lim.lower), lim.upper)
+    v = np.clip(np.nan_to_num(state.velocity), -lim.velocity, lim.velocity)
+    a = np.clip(np.nan_to_num(state.acceleration), -lim.acceleration, lim.acceleration)
+    # on a limit, a joint is not moving on past it (the reading is; the joint cannot)
+    out = ((p >= lim.upper) & (v > 0)) | ((p <= lim.lower) & (v < 0))
+    v[out] = 0.0
+    a[out | ((p >= lim.upper) & (a > 0)) | ((p <= lim.lower) & (a < 0))] = 0.0
+    return JointState(p, v, a)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+from typing import Any
 
 import numpy as np
 import pytest
@@ -171,3 +172,248 @@ def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Sessio
     with pytest.raises(BadRequest) as e:
         GrblAdapter(adapter_session, robots.load("insomniac"), "/dev/nonexistent-grbl")
     assert e.value.field == "robot" and "not all steppers: the GRBL adapter drives steppers" in e.value.message
+
+
+# -- the promise, at the board: every joint within its limits, at every moment ----------------------
+
+import os  # noqa: E402
+import signal  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from clients.emulators.measure import Motion, pulse_resolution, ssc32_motion  # noqa: E402
+from clients.emulators.measure import ratios as _ratios  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint near its velocity limit
+# The board's pulses are whole microseconds: the measure allows each piece's speed the
+# uncertainty of its ends' rounding (clients/emulators/measure.py). What is left is the host's
+# timing of its writes (a millisecond on 20 ms pieces); the adapter's own model keeps every
+# change within the limit (test_the_adapters_own_model_keeps_the_limits).
+ACCEL_BAR = 1.05
+SPEED_BAR = 1.01  # (the same rounding on a speed)
+
+
+def ratios(arm: robots.Robot, m: Motion, period: float, exact: bool = False) -> Any:
+    """The worst speed and acceleration against the limits: of the board's output (its 1 us
+    rounding allowed for), or of an exact path (``exact``: the adapter's own model)."""
+    return _ratios(arm, m, period, 0.0 if exact else pulse_resolution(arm))
+
+
+def commanded(adapter: SSC32Adapter) -> Motion:
+    """The group moves as the adapter sent and timed them (each from where it had the board, at
+    the time the link delivers it): what a board that keeps time does, before the pulses' rounding."""
+    pieces = list(adapter._pieces)[1:]
+    times, points = [], []
+    for (p0, t0, p1, t1), nxt in zip(pieces, [*pieces[1:], None], strict=True):
+        times.append(t0)
+        points.append(p0)
+        if nxt is None or t1 < nxt[1]:
+            times.append(t1)
+            points.append(p1)
+    return Motion(np.array(times), np.array(points), 0)
+
+
+def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
+    m = ssc32_motion(arm, emu, since=since)
+    assert len(m.times) > 10, "the board did not move"
+    return m
+
+
+def _check_promise(arm: robots.Robot, m: Motion, period: float, planned: float, goal: list[float],
+                   slack: float = 0.15) -> None:
+    r = ratios(arm, m, period)
+    assert m.jumps == 0
+    assert r.outside <= 1e-9, r
+    assert r.velocity <= SPEED_BAR, r
+    assert r.acceleration <= ACCEL_BAR, r
+    start, end = m.moving()
+    assert end - start <= 1.15 * planned + slack, (end - start, planned)  # re-timed at most a little slower
+    assert np.max(np.abs(m.position[-1] - np.array(goal))) < 3e-3  # at the goal (within the pulses' rounding)
+
+
+@pytest.mark.parametrize(("baud", "query_delay"), [(115200, 1e-4), (115200, 0.15), (9600, 1e-4)],
+                         ids=["quiet", "slow board", "factory 9600 baud"])
+def test_a_move_keeps_every_limit_at_the_board(client: ArmClient, service: object, adapter_session: zenoh.Session,
+                                               baud: int, query_delay: float) -> None:
+    """What the board outputs (its own interpolation, exactly) moves every joint within its
+    limits, and arrives: at 9600 baud the stream is thinned to what the link carries, and a
+    board that answers QP in 150 ms neither slows the stream nor faults."""
+    arm = robots.load("insomniac")
+    with SSC32Emulator(baud=baud, query_delay=query_delay) as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, baud=baud)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            events, sub = collect(client, "armd/insomniac/events")
+            time.sleep(0.1)  # (the start-up's jump to neutral reaches the board)
+            since = emu.clock()
+            r = client.move("insomniac", GOAL, wait=True, wait_timeout=15)
+            time.sleep(0.3)
+            sub.undeclare()  # type: ignore[attr-defined]
+            assert not [e for e in events if e["event"] in ("fault", "aborted", "rejected")], events
+            period = adapter._stride / 50.0
+            _check_promise(arm, _moved(arm, emu, since), period, r.duration, GOAL)
+            if baud == 9600:
+                assert adapter._stride > 1  # thinned: 50 group moves a second do not fit 960 bytes a second
+        finally:
+            adapter.close()
+
+
+def test_the_adapters_own_model_keeps_the_limits(client: ArmClient, service: object,
+                                                 adapter_session: zenoh.Session) -> None:
+    """The group moves as the adapter timed them (before the pulses' rounding): every change of
+    speed within the acceleration limits, every speed within the velocity limits."""
+    arm = robots.load("insomniac")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            client.move("insomniac", GOAL, wait=True, wait_timeout=15)
+            r = ratios(arm, commanded(adapter), 0.02, exact=True)
+            assert r.velocity <= 1.0 + 1e-6 and r.acceleration <= 1.0 + 1e-3, r
+        finally:
+            adapter.close()
+
+
+def test_busy_processes_do_not_break_the_promise(client: ArmClient, service: object,
+                                                 adapter_session: zenoh.Session) -> None:
+    """Two processes spinning beside the adapter (on a 2-core machine): late ticks re-time the
+    stream, never speed it up."""
+    arm = robots.load("insomniac")
+    burn = [subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+20\nwhile time.time()<t: pass"])
+            for _ in range(2)]
+    try:
+        with SSC32Emulator() as emu:
+            adapter = SSC32Adapter(adapter_session, arm, emu.port)
+            try:
+                wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+                time.sleep(0.1)
+                since = emu.clock()
+                r = client.move("insomniac", GOAL, wait=True, wait_timeout=20)
+                time.sleep(0.3)
+                m = _moved(arm, emu, since)
+                rr = ratios(arm, m, 0.02)
+                assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
+                # (within 1%: a write may be held up after it is timed)
+                mine = ratios(arm, commanded(adapter), 0.02, exact=True)
+                assert mine.velocity <= 1.0 + 1e-6 and mine.acceleration <= 1.01, mine
+                # The emulator, starved of the CPU too, stamps each command when its thread gets to read
+                # it (a real board when it arrives): its view of the changes of speed is ms-late.
+                assert rr.acceleration <= 2.0, rr
+                assert np.max(np.abs(m.position[-1] - np.array(GOAL))) < 3e-3
+                assert m.moving()[1] - m.moving()[0] <= 2.0 * r.duration + 0.5
+            finally:
+                adapter.close()
+    finally:
+        for p in burn:
+            p.kill()
+            p.wait()
+
+
+def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmClient, service: object,
+                                                       tmp_path: Path) -> None:
+    """The adapter's process stopped (SIGSTOP) for 1.5 s mid-move: the board finishes the move in
+    hand and holds; when the adapter runs again it ramps up from rest within the limits and
+    finishes the trajectory later: never faster than the limits."""
+    arm = robots.load("insomniac")
+    with SSC32Emulator() as emu:
+        env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
+        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
+                                 emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
+            time.sleep(0.1)
+            since = emu.clock()
+            r = client.move("insomniac", GOAL)
+            time.sleep(0.3 * r.duration)
+            proc.send_signal(signal.SIGSTOP)
+            stalled = emu.clock()
+            time.sleep(1.5)
+            proc.send_signal(signal.SIGCONT)
+            wait_for(lambda: np.max(np.abs(ssc32_joints(arm, emu) - GOAL)) < 3e-3, timeout=15, what="the goal")
+            time.sleep(0.3)
+            m = _moved(arm, emu, since)
+            before = Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0)
+            after = m.times >= stalled + 1.0
+            resumed = Motion(m.times[after], m.position[after], 0)
+            for part in (before, resumed):
+                rr = ratios(arm, part, 0.02)
+                assert rr.velocity <= SPEED_BAR and rr.acceleration <= ACCEL_BAR and rr.outside <= 1e-9, rr
+            assert m.jumps == 0
+            # the stall: the board finished its move in hand (within the lead and a period) and held there:
+            # the one stop at speed an SSC-32 move cannot soften (docs/adapters.md)
+            at = [np.array([np.interp(t, m.times, m.position[:, j]) for j in range(arm.nq)])
+                  for t in (stalled + 0.15, stalled + 1.0)]
+            assert np.allclose(at[0], at[1], atol=1e-9)  # held, while the adapter was stopped
+            v = np.diff(m.position, axis=0) / np.maximum(np.diff(m.times), 1e-9)[:, None]
+            assert np.all(np.abs(v[(m.times[:-1] >= stalled) & (m.times[1:] <= stalled + 1.5)])
+                          <= arm.limits.velocity * SPEED_BAR)
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+def test_a_restarted_adapter_adopts_the_board_and_a_powered_board_gets_the_last_pose(
+        client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    arm = robots.load("insomniac")
+    q1 = np.array([0.4, 1.3, -1.2, -0.3, 0.2])
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+        client.move("insomniac", q1.tolist(), wait=True, wait_timeout=15)
+        adapter.close()  # (it keeps the last pose in ARMD_STATE_DIR)
+        wait_for(lambda: service._adapter_count(arm) == 0, what="the token gone")  # type: ignore[attr-defined]
+        sent = len(emu.history)
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)  # the board kept its pulses: adopted, nothing sent
+        try:
+            assert len(emu.history) == sent
+            assert np.allclose(adapter.measure().position, q1, atol=0.02)
+        finally:
+            adapter.close()
+        emu.power_cycle()  # a board just powered: no pulses; the first command is a jump, to the pose kept
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: len(emu.history) > sent, timeout=2, what="the first command")
+            first = emu.history[sent]
+            assert first.duration_ms is None
+            assert [first.pulses[a.channel] for a in arm.actuators.actuators] == arm.actuators.commands(q1).tolist()  # type: ignore[union-attr]
+        finally:
+            adapter.close()
+
+
+def test_a_board_that_disagrees_with_the_adapter_is_a_fault(client: ArmClient, service: object,
+                                                            adapter_session: zenoh.Session) -> None:
+    arm = robots.load("sg5ut")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, query_period=0.1)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            events, sub = collect(client, "armd/sg5ut/events")
+            emu.power_cycle()  # reset behind the adapter's back: QP answers 0
+            wait_for(lambda: any(e["event"] == "fault" for e in events), timeout=5, what="a fault")
+            fault = next(e for e in events if e["event"] == "fault")
+            assert "outputs 0 us" in str(fault["reason"]) and "reset" in str(fault["reason"])
+            sub.undeclare()  # type: ignore[attr-defined]
+        finally:
+            adapter.close()
+
+
+def test_a_link_too_slow_for_the_trajectory_is_refused_before_any_pulse(client: ArmClient, service: object,
+                                                                        adapter_session: zenoh.Session) -> None:
+    arm = robots.load("insomniac")
+    with SSC32Emulator(baud=1200) as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, baud=1200, timeout=1.0)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            events, sub = collect(client, "armd/insomniac/events")
+            sent = len(emu.history)
+            client.move("insomniac", GOAL)
+            wait_for(lambda: any(e["event"] == "rejected" for e in events), timeout=5, what="a rejection")
+            time.sleep(0.2)
+            assert len(emu.history) == sent
+            assert "1200 baud" in str(next(e for e in events if e["event"] == "rejected")["reason"])
+            sub.undeclare()  # type: ignore[attr-defined]
+        finally:
+            adapter.close()

@@ -33,3 +33,54 @@ def test_bad_robots_dir_is_a_clear_error(tmp_path: Path) -> None:
     assert out.returncode == 2
     assert "armd: error:" in out.stderr and "is not a folder" in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_an_adapter_with_a_missing_port_says_so_in_one_line() -> None:
+    out = armd("adapter", "ssc32", "insomniac", "--port", "/dev/ttyNOSUCHPORT", "--connect", "tcp/127.0.0.1:9")
+    assert out.returncode == 1
+    assert out.stderr.strip().splitlines() == [out.stderr.strip()]  # one line
+    assert "cannot open /dev/ttyNOSUCHPORT" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_an_adapter_waits_for_a_router_and_says_so() -> None:
+    import signal
+    import time
+
+    from clients.emulators.ssc32 import SSC32Emulator
+    from service.zconfig import free_endpoint
+
+    with SSC32Emulator() as emu:
+        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
+                                 emu.port, "--connect", free_endpoint()], cwd=Path(__file__).resolve().parent.parent,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(4.0)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "no Zenoh router answers" in err and "retrying" in err and "Traceback" not in err
+
+
+def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> None:
+    """`armd estop` and `armd unlock` put straight on the adapter's keys: no service runs here."""
+    import zenoh
+
+    import robots
+    from clients.sim import SimAdapter
+    from service.zconfig import free_endpoint, network_config
+
+    endpoint = free_endpoint()
+    router = zenoh.open(network_config(listen=[endpoint], mode="router"))
+    session = zenoh.open(network_config(connect=[endpoint]))
+    adapter = SimAdapter(session, robots.load("gupta3"))
+    try:
+        out = armd("estop", "gupta3", "--connect", endpoint)
+        assert out.returncode == 0, out.stderr
+        assert f"adapter {adapter.id} (sim): stopping" in out.stdout
+        out = armd("unlock", "gupta3", "--assume-rest", "--connect", endpoint, "--wait", "5")
+        assert out.returncode == 2 and "nothing to unlock" in out.stderr  # the simulator always knows
+        out = armd("estop", "desk4", "--connect", endpoint, "--wait", "0.3")
+        assert out.returncode == 1 and "no adapter of desk4 acknowledged" in out.stderr
+    finally:
+        adapter.close()
+        session.close()
+        router.close()

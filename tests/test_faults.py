@@ -139,6 +139,9 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
     published: list[dict[str, object]] = []
     sub = session.declare_subscriber("leave/gupta3/trajectory",
                                      lambda s: published.append(json.loads(s.payload.to_bytes())))
+    estops: list[dict[str, object]] = []
+    estop_sub = session.declare_subscriber("leave/gupta3/estop",
+                                           lambda s: estops.append(json.loads(s.payload.to_bytes())))
     client = ArmClient(router, prefix="leave", timeout=10.0)
     killed = closed = None
     try:
@@ -148,7 +151,7 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
         d = rng.normal(size=(20_000, 3))
         far = np.round(0.8 * d / np.linalg.norm(d, axis=1)[:, None], 6).tolist()
         killed = _leaver(router, "leave/gupta3/ik", {"targets": far, "deadline": 1.5}, tmp_path)
-        wait_for(lambda: service.stats()["in_flight"] >= 1, what="the batch to arrive")
+        wait_for(lambda: service.stats()["in_flight"] >= 1, timeout=30, what="the batch to arrive")
         killed.kill()
         killed.wait(10)
         for q in ([0.2, 1.1, -1.2], [-0.4, 0.9, -0.8], [0.0, 1.3, -1.5]):  # the others are served, and right
@@ -161,7 +164,7 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
         goal = (arm.fk(sim.position) + np.array([0.0, 0.05, 0.05])).tolist()
         closed = _leaver(router, "leave/gupta3/move", {"goal": {"target": goal}, "path": "line", "speed": 0.05,
                                                        "rate_hz": 1000}, tmp_path)
-        wait_for(lambda: service.stats()["in_flight"] >= 1, what="the move to arrive")
+        wait_for(lambda: service.stats()["in_flight"] >= 1, timeout=30, what="the move to arrive")
         assert closed.stdin is not None
         closed.stdin.write("leave\n")
         closed.stdin.flush()
@@ -169,8 +172,9 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
         # the move was accepted: it is published once, though nobody reads its reply; stop ends it
         wait_for(lambda: len(published) == 1, what="the move's trajectory")
         assert published[0]["kind"] == "move" and published[0]["path"] == "line"
-        client.stop("gupta3")
-        wait_for(lambda: len(published) == 2 and published[1]["kind"] == "stop", what="the stop")
+        stopped = client.stop("gupta3")
+        wait_for(lambda: len(estops) == 1 and estops[0]["id"] == stopped["id"], what="the stop")
+        assert len(published) == 1  # (a stop goes out on estop: the adapter brakes from its own state)
         client.wait_until_still("gupta3", timeout=10)
         assert np.allclose(client.fk("gupta3", [0, 1, -1]).position, arm.fk([0, 1, -1]), atol=1e-15)
         wait_for(lambda: service.stats()["in_flight"] == 0, what="an idle service")
@@ -184,6 +188,7 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
                 p.wait(10)
         client.close()
         sub.undeclare()
+        estop_sub.undeclare()
         sim.close()
         service.close()
         session.close()

@@ -15,6 +15,7 @@ import robots
 import solvers
 from clients import ArmClient, ServiceError
 from clients.sim import SimAdapter
+from robots import ArmdError
 from tests.conftest import collect
 from tests.test_fk import random_in_limits
 
@@ -315,3 +316,54 @@ def test_every_arm_moves_through_the_simulator(client: ArmClient, router: str, s
     finally:
         adapter.close()
         session.close()
+
+
+def test_a_stop_is_never_refused_from_a_state_a_hair_outside_the_limits() -> None:
+    """A measured state just past a position limit, moving a hair over a velocity limit (a
+    stepper's whole steps, a servo's rounding): the stop goes out on estop and is answered, with
+    a rest pose inside the limits; ``limit`` is not an answer to a stop. A move refuses to plan
+    from there, as it should."""
+    from planning import JointState
+    from service.deadline import Deadline
+    from service.handlers import Handlers
+    from service.protocol import Limits
+    from service.state import StateBook
+
+    arm = robots.load("gupta3")
+    book = StateBook()
+    estops: list[dict[str, object]] = []
+    handlers = Handlers({"gupta3": arm}, book, Limits(), lambda a, m: None, lambda a: 1,
+                        publish_estop=lambda a, m: estops.append(m))
+    lim = arm.limits
+    q = (lim.lower + lim.upper) / 2
+    q[1] = lim.upper[1] + 1.1e-3  # the shoulder decelerating onto its limit, read past it (a whole step)
+    v = np.zeros(arm.nq)
+    v[1] = 0.05
+    v[0] = lim.velocity[0] * 1.000001  # the yaw a hair over its velocity limit
+    book.report("gupta3", JointState(q, v, np.zeros(arm.nq)), True)
+    r = handlers.stop(arm, {}, Deadline(time.monotonic(), 5.0))
+    assert len(estops) == 1 and estops[0]["id"] == r["id"]
+    assert lim.contains(np.array(r["rest"]), tol=1e-9)
+    with pytest.raises(ArmdError) as e:
+        handlers.move(arm, {"goal": arm.neutral.tolist()}, Deadline(time.monotonic(), 5.0))
+    assert e.value.code == "bad_request"
+
+
+def test_move_is_refused_while_the_adapter_does_not_know_where_the_arm_is() -> None:
+    from planning import JointState
+    from service.deadline import Deadline
+    from service.handlers import Handlers
+    from service.protocol import Limits
+    from service.state import StateBook
+
+    arm = robots.load("gupta3")
+    book = StateBook()
+    published: list[object] = []
+    handlers = Handlers({"gupta3": arm}, book, Limits(), lambda a, m: published.append(m), lambda a: 1)
+    book.report("gupta3", JointState.at_rest(arm.neutral.copy()), False, homed=False)
+    with pytest.raises(ArmdError) as e:
+        handlers.move(arm, {"goal": [0.1, 1.0, -1.0]}, Deadline(time.monotonic(), 5.0))
+    assert e.value.code == "position_unknown" and published == []
+    book.report("gupta3", JointState.at_rest(arm.neutral.copy()), False, homed=True)
+    handlers.move(arm, {"goal": [0.1, 1.0, -1.0]}, Deadline(time.monotonic(), 5.0))
+    assert len(published) == 1

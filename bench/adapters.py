@@ -1,0 +1,257 @@
+"""Adapters benchmark: what reaches the controller, against the limits, when things go wrong.
+
+Per adapter on its emulator (the SSC-32 for insomniac, GRBL for gupta3), the adapter a process
+of its own (``armd adapter ...``, as a user runs it) and the service in this one, in four
+conditions:
+
+* idle: nothing else runs;
+* busy: two processes spin beside it (the machine has 2 cores);
+* slow board: the SSC-32 answers ``QP`` in 150 ms; GRBL answers ``?`` in 150 ms;
+* stall: the adapter's process is stopped (SIGSTOP) for 1.5 s in the middle of a move.
+
+Each run moves the arm far (every joint near its velocity limit) and back, then stops it
+mid-move. Reported, per condition: the worst implied speed and acceleration of any joint (SSC-32:
+the board's own output, exactly, per group move; GRBL: its trace fitted over 40 ms, on a copy of
+gupta3 with 256 micro-steps so that the fit sees the motion, not the steps) as a ratio of the
+limits; executed vs planned duration; the stop's latency (from ``stop`` asked to the arm at rest)
+against the stop's planned duration. Medians and worst over the runs.
+
+Run: ``.venv/bin/python bench/adapters.py [--runs 3]``. Prints a Markdown table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zenoh
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+import robots  # noqa: E402
+from clients import ArmClient  # noqa: E402
+from clients.emulators.grbl import GrblEmulator  # noqa: E402
+from clients.emulators.measure import (  # noqa: E402
+    actuator_limits_deg,
+    fitted_peaks,
+    grbl_motion,
+    ratios,
+    span,
+    ssc32_motion,
+)
+from clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
+from service.server import Service  # noqa: E402
+from service.zconfig import free_endpoint, network_config  # noqa: E402
+
+CONDITIONS = ("idle", "busy", "slow board", "stall")
+SSC32_GOALS = ([1.2, 2.0, -1.8, 1.0, 1.0], [-0.9, 1.0, -0.6, -1.0, -1.0])
+GRBL_GOALS = ([1.5, 1.0, -2.3], [-1.0, 2.0, -0.8])
+
+
+def wait(pred: Callable[[], bool], timeout: float, what: str) -> None:
+    end = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > end:
+            raise TimeoutError(f"timed out waiting for {what}")
+        time.sleep(0.01)
+
+
+def burners(n: int) -> list[subprocess.Popen[bytes]]:
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+
+
+def fine_gupta(folder: Path) -> Path:
+    """gupta3 with 256 micro-steps (its limits unchanged): a trace fine enough to fit."""
+    dst = folder / "gupta3fine"
+    shutil.copytree(robots.CATALOGUE_DIR / "gupta3", dst)
+    toml = (dst / "robot.toml").read_text().replace("microsteps = 16", "microsteps = 256")
+    (dst / "robot.toml").write_text(toml)
+    return dst
+
+
+class Bench:
+    def __init__(self, arms_dir: Path) -> None:
+        self.endpoint = free_endpoint()
+        self.router = zenoh.open(network_config(listen=[self.endpoint], mode="router"))
+        self.session = zenoh.open(network_config(connect=[self.endpoint]))
+        self.arms_dir = arms_dir
+        self.arms = {"insomniac": robots.load("insomniac"), **robots.load_dir(arms_dir)}
+        self.service = Service(self.session, self.arms)
+        self.client = ArmClient(self.endpoint, timeout=10.0)
+
+    def close(self) -> None:
+        self.client.close()
+        self.service.close()
+        self.session.close()
+        self.router.close()
+
+    def adapter(self, kind: str, robot: str, port: str, state_dir: str, *extra: str) -> subprocess.Popen[str]:
+        env = {**os.environ, "ARMD_STATE_DIR": state_dir}
+        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", kind, robot, "--port", port,
+                                 "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
+                                cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30,
+             "the adapter")
+        if proc.poll() is not None:
+            raise RuntimeError(f"the {kind} adapter exited: {proc.stderr.read() if proc.stderr else ''}")
+        return proc
+
+    def at_rest(self, robot: str, goal: list[float], timeout: float) -> None:
+        def there() -> bool:
+            s = self.client.state(robot)
+            return not s["moving"] and bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
+
+        wait(there, timeout, "the arm at its goal")
+
+
+def run_move(b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str], stall: bool) -> float:
+    """One move; returns the planned duration [s]."""
+    r = b.client.move(robot, goal)
+    if stall:
+        time.sleep(0.3 * r.duration)
+        proc.send_signal(signal.SIGSTOP)
+        time.sleep(1.5)
+        proc.send_signal(signal.SIGCONT)
+    b.at_rest(robot, goal, r.duration + 15)
+    return r.duration
+
+
+def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
+    arm = b.arms["insomniac"]
+    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
+    with tempfile.TemporaryDirectory() as state, \
+            SSC32Emulator(query_delay=0.15 if condition == "slow board" else 1e-4) as emu:
+        proc = b.adapter("ssc32", "insomniac", emu.port, state)
+        hot = burners(2) if condition == "busy" else []
+        try:
+            time.sleep(0.2)
+            for k in range(runs):
+                for goal in SSC32_GOALS:
+                    since = emu.clock()
+                    planned = run_move(b, "insomniac", goal, proc, condition == "stall")
+                    time.sleep(0.2)
+                    m = ssc32_motion(arm, emu, since)
+                    r = ratios(arm, m, 0.02)
+                    t0, t1 = m.moving()
+                    out["v"].append(r.velocity)
+                    out["a"].append(r.acceleration)
+                    if condition != "stall":  # (a stall adds 1.5 s by design)
+                        out["duration"].append((t1 - t0) / planned)
+                out["stop"].append(stop_latency(b, "insomniac", SSC32_GOALS[k % 2], lambda: ssc32_still(arm, emu)))
+        finally:
+            for p in hot:
+                p.kill()
+            proc.terminate()
+            proc.wait(10)
+    return out
+
+
+def ssc32_still(arm: robots.Robot, emu: SSC32Emulator) -> float | None:
+    """When the board's output last changed [s], if it has been still for 0.1 s since."""
+    m = ssc32_motion(arm, emu, emu.clock() - 5.0)
+    end = m.moving()[1]
+    return end if emu.clock() - end > 0.1 else None
+
+
+def grbl_still(emu: GrblEmulator, arm: robots.Robot) -> float | None:
+    t, p = grbl_motion(arm, emu)
+    if len(t) < 2:
+        return None
+    end = span(t, p)[1]
+    return end if emu.state == "Idle" and time.monotonic() - end > 0.1 else None
+
+
+def stop_latency(b: Bench, robot: str, goal: list[float], still: Callable[[], float | None]) -> float:
+    """A move, a stop 40% in: how long the arm took to be at rest, over the stop's planned duration."""
+    r = b.client.move(robot, goal)
+    time.sleep(0.4 * r.duration)
+    asked = time.monotonic()
+    stopped = b.client.stop(robot)
+    wait(lambda: still() is not None, 10, "the arm at rest")
+    end = still()
+    assert end is not None
+    state = b.client.state(robot)
+    b.at_rest(robot, state["position"], 10)
+    return (end - asked) / max(stopped["duration"], 1e-3)
+
+
+def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
+    arm = b.arms["gupta3fine"]
+    vlim, alim = actuator_limits_deg(arm)
+    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
+    with tempfile.TemporaryDirectory() as state, \
+            GrblEmulator(status_delay=0.15 if condition == "slow board" else 0.003) as emu:
+        proc = b.adapter("grbl", "gupta3fine", emu.port, state, "--assume-rest")
+        hot = burners(2) if condition == "busy" else []
+        try:
+            wait(lambda: b.client.state("gupta3fine").get("homed") is True, 10, "homed")
+            for k in range(runs):
+                for goal in GRBL_GOALS:
+                    emu.clear_trace()
+                    planned = run_move(b, "gupta3fine", goal, proc, condition == "stall")
+                    wait(lambda: emu.state == "Idle", 10, "GRBL idle")
+                    t, p = grbl_motion(arm, emu)
+                    v, a = fitted_peaks(t, p, 0.04)
+                    out["v"].append(float(np.max(v / vlim)))
+                    out["a"].append(float(np.max(a / alim)))
+                    if condition != "stall":
+                        t0, t1 = span(t, p)
+                        out["duration"].append((t1 - t0) / planned)
+                emu.clear_trace()
+                out["stop"].append(stop_latency(b, "gupta3fine", GRBL_GOALS[k % 2], lambda: grbl_still(emu, arm)))
+        finally:
+            for burner in hot:
+                burner.kill()
+            proc.terminate()
+            proc.wait(10)
+    return out
+
+
+def cell(values: list[float]) -> str:
+    if not values:
+        return "-"
+    a = np.array(values)
+    return f"{np.median(a):.2f} / {np.max(a):.2f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3, help="move pairs and stops per condition (default 3)")
+    parser.add_argument("--only", choices=["ssc32", "grbl"], help="one adapter only")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as arms:
+        fine_gupta(Path(arms))
+        b = Bench(Path(arms))
+        rows: list[tuple[str, str, dict[str, Any]]] = []
+        try:
+            for name, runner in (("ssc32", ssc32_runs), ("grbl", grbl_runs)):
+                if args.only not in (None, name):
+                    continue
+                for condition in CONDITIONS:
+                    started = time.monotonic()
+                    res = runner(b, condition, args.runs)
+                    rows.append((name, condition, res))
+                    print(f"{name} {condition}: {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
+        finally:
+            b.close()
+    print("| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop |")
+    print("|---|---|---|---|---|---|")
+    for name, condition, res in rows:
+        print(f"| {name} | {condition} | {cell(res['v'])} | {cell(res['a'])} | {cell(res['duration'])} | "
+              f"{cell(res['stop'])} |")
+    print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
+
+
+if __name__ == "__main__":
+    main()
