@@ -167,6 +167,9 @@ class SSC32Adapter(SerialAdapter):
         log.warning("%s: the SSC-32 outputs no pulses (just powered): a hobby servo's position is unknown until "
                     "its first pulse, so the arm JUMPS to %s at the servos' own speed now", self.robot.name, where)
         self._send(amap.commands(q), None)
+        if not np.all(self._query_pulses() > 0):  # (asked after the move: answered once the board has it)
+            self.serial.close()
+            raise ControllerFault(f"the SSC-32 on {self.port} did not take its first command")
         self._hold_at(q)
 
     def _left_at(self) -> tuple[FloatArray, str]:

@@ -5,7 +5,6 @@ emulator with GRBL's planner) the executed timing and acceleration of a move."""
 
 from __future__ import annotations
 
-import inspect
 import threading
 import time
 from collections.abc import Iterator
@@ -20,11 +19,11 @@ import robots
 from clients import ArmClient, ServiceError
 from clients.adapter import ControllerFault
 from clients.emulators.grbl import GrblEmulator
+from clients.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_motion, span
 from clients.grbl import GrblAdapter
 from tests.conftest import collect, wait_for
 
 ARM = "gupta3"
-NEW_EMULATOR = "physical_start" in inspect.signature(GrblEmulator.__init__).parameters  # GRBL's planner, trace
 
 
 def actuator_steps(arm: robots.Robot, q: object) -> np.ndarray:
@@ -119,7 +118,6 @@ def test_assume_rest_at_start_and_a_rest_pose_of_its_own(client: ArmClient, serv
         assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
 
 
-@pytest.mark.skipif(not NEW_EMULATOR, reason="needs the emulator with work offsets (branch grbl-emu)")
 def test_a_stored_work_offset_does_not_shift_the_arm(client: ArmClient, service: object,
                                                       adapter_session: zenoh.Session) -> None:
     arm = robots.load(ARM)
@@ -270,15 +268,15 @@ def test_stop_mid_move_decelerates_along_the_path_in_time(client: ArmClient, ser
         print(f"\nstop: planned {planned:.3f} s, done {took:.3f} s after the request "
               f"({took / planned:.3f}x planned)")
         assert took <= 1.25 * planned + 0.1, (took, planned)
-        if NEW_EMULATOR:  # the arm's own motion, exactly: no axis ever reverses during the stop
-            tt, pp = trace_of(emu, arm)
-            now = time.monotonic() - (time.time() - asked)  # the request on the emulator's clock
-            seg = pp[tt >= now - 0.1]
-            d = np.sign(seg[min(len(seg) - 1, 20)] - seg[0])
-            assert not (np.diff(pp[tt >= now], axis=0) * d < 0).any(), "a joint reversed during the stop"
-            t_end = motion_window(tt[tt >= now - 1.0], pp[tt >= now - 1.0])[1]
-            print(f"stop: the arm at rest {t_end - now:.3f} s after the request (trace)")
-            assert t_end - now <= 1.25 * planned + 0.1
+        # the arm's own motion, exactly: no axis ever reverses during the stop
+        tt, pp = grbl_motion(arm, emu)
+        now = time.monotonic() - (time.time() - asked)  # the request on the emulator's clock
+        seg = pp[tt >= now - 0.1]
+        d = np.sign(seg[min(len(seg) - 1, 20)] - seg[0])
+        assert not (np.diff(pp[tt >= now], axis=0) * d < 0).any(), "a joint reversed during the stop"
+        t_end = span(tt[tt >= now - 1.0], pp[tt >= now - 1.0])[1]
+        print(f"stop: the arm at rest {t_end - now:.3f} s after the request (trace)")
+        assert t_end - now <= 1.25 * planned + 0.1
         before = (t > asked - 0.1) & (t <= asked)
         direction = np.sign(steps[before][-1] - steps[before][0])
         assert np.count_nonzero(direction) >= 2  # the joints were moving
@@ -348,41 +346,6 @@ def test_silence_withdraws_the_token(service: object, adapter_session: zenoh.Ses
         assert adapter.fault and "does not answer" in adapter.fault
 
 
-def trace_of(emu: GrblEmulator, arm: robots.Robot) -> tuple[np.ndarray, np.ndarray]:
-    """The emulator's record of the arm's physical motion: times [s] and positions [deg], per actuator."""
-    emu_any: Any = emu
-    trace = emu_any.trace() if callable(emu_any.trace) else list(emu_any.trace)
-    cols = [emu.axes.index(a.axis) for a in arm.actuators.actuators]  # type: ignore[union-attr]
-    return np.array([t for t, _ in trace]), np.array([[p[c] for c in cols] for _, p in trace])
-
-
-def motion_window(t: np.ndarray, p: np.ndarray) -> tuple[float, float]:
-    """When the motion recorded began and ended [s]."""
-    moving = np.flatnonzero(np.any(p != p[0], axis=1))
-    still = np.flatnonzero(np.any(p != p[-1], axis=1))
-    return float(t[max(moving[0] - 1, 0)]), float(t[still[-1] + 1])
-
-
-def peak_acceleration(t: np.ndarray, p: np.ndarray, window: float, dt: float = 0.002) -> np.ndarray:
-    """Per axis, the largest |acceleration| of the motion [deg/s^2]: the motion resampled every
-    ``dt``, then a least-squares parabola over each ``window`` [s] (a stepper moves in whole steps:
-    plain second differences of its position measure the steps, 1 step / dt^2, not the motion)."""
-    t0, t1 = motion_window(t, p)
-    grid = np.arange(t0 - window, t1 + window, dt)
-    q = np.column_stack([np.interp(grid, t, p[:, j]) for j in range(p.shape[1])])
-    half = round(window / dt / 2)
-    x = np.arange(-half, half + 1) * dt
-    weights = np.linalg.pinv(np.vander(x, 3))[0] * 2.0  # the fitted parabola's second derivative
-    acc = np.column_stack([np.convolve(q[:, j], weights[::-1], mode="valid") for j in range(q.shape[1])])
-    return np.max(np.abs(acc), axis=0)
-
-
-def actuator_limits_deg(arm: robots.Robot) -> tuple[np.ndarray, np.ndarray]:
-    m = np.abs(arm.actuators.M)
-    return np.degrees(m @ arm.limits.velocity), np.degrees(m @ arm.limits.acceleration)
-
-
-@pytest.mark.skipif(not NEW_EMULATOR, reason="needs the emulator with GRBL's planner and its trace (branch grbl-emu)")
 @pytest.mark.parametrize("rate_hz", [50.0, 200.0])
 def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, service: object, arm_copy: Any,
                                                           adapter_session: zenoh.Session, rate_hz: float) -> None:
@@ -399,18 +362,18 @@ def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, ser
         goal = np.array([1.5, 1.0, -2.3])
         reply = client.move(ARM, goal.tolist(), rate_hz=rate_hz, wait=True, wait_timeout=20)
         wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
-        t, p = trace_of(emu, arm)
-        t0, t1 = motion_window(t, p)
+        t, p = grbl_motion(arm, emu)
+        t0, t1 = span(t, p)
         executed = t1 - t0
         _, amax = actuator_limits_deg(arm)
-        peaks = {w: peak_acceleration(t, p, w) / amax for w in (0.04, 0.1)}
+        peaks = {w: fitted_peaks(t, p, w)[1] / amax for w in (0.04, 0.1)}
         # the same measure of the plan itself, followed exactly by a stepper (whole steps at their times)
         plan = client.plan(ARM, goal.tolist(), start=list(arm.neutral), rate_hz=rate_hz)
         fine = np.arange(0.0, plan.duration + 1e-9, 0.002)
         angles = np.degrees(arm.actuators.angles(plan.position))
         ideal = np.column_stack([np.interp(fine, plan.times, c) for c in angles.T])
         spd = np.array([a.steps_per_degree for a in arm.actuators.actuators])  # type: ignore[union-attr]
-        floor = {w: peak_acceleration(fine, np.rint(ideal * spd) / spd, w) / amax for w in peaks}
+        floor = {w: fitted_peaks(fine, np.rint(ideal * spd) / spd, w)[1] / amax for w in peaks}
         print(f"\n{rate_hz:g} Hz: planned {reply.duration:.3f} s, executed {executed:.3f} s "
               f"({executed / reply.duration:.3f}x); peak acceleration / limit per axis, fitted over "
               + "; ".join(f"{w * 1000:g} ms: {np.round(r, 3).tolist()} (the plan, stepped: "
@@ -421,7 +384,6 @@ def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, ser
         assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
 
 
-@pytest.mark.skipif(not NEW_EMULATOR, reason="needs the emulator with homing switches (branch grbl-emu)")
 def test_homing_sets_the_position_from_home_pose(client: ArmClient, adapter_session: zenoh.Session,
                                                  arm_copy: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     """An arm with switches ([controller] homing = true, home_pose): ``$H``, then exact moves. GRBL
