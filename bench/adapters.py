@@ -11,10 +11,12 @@ conditions:
 
 Each run moves the arm far (every joint near its velocity limit) and back, then stops it
 mid-move. Reported, per condition: the worst implied speed and acceleration of any joint (SSC-32:
-the board's own output, exactly, per group move; GRBL: its trace fitted over 40 ms, on a copy of
-gupta3 with 256 micro-steps so that the fit sees the motion, not the steps) as a ratio of the
-limits; executed vs planned duration; the stop's latency (from ``stop`` asked to the arm at rest)
-against the stop's planned duration. Medians and worst over the runs.
+the board's own output, exactly, per group move, its 1 us pulses allowed for; in a stall, the
+motion before and after it: the hold at the stall is the one stop at speed an SSC-32 move cannot
+soften; GRBL: its trace fitted over 40 ms, on a copy of gupta3 with 256 micro-steps so that the
+fit sees the motion, not the steps) as a ratio of the limits; executed vs planned duration; the
+stop's latency (from ``stop`` asked to the arm at rest) against the stop's planned duration.
+Medians and worst over the runs.
 
 Run: ``.venv/bin/python bench/adapters.py [--runs 3]``. Prints a Markdown table.
 """
@@ -43,12 +45,14 @@ import robots  # noqa: E402
 from clients import ArmClient  # noqa: E402
 from clients.emulators.grbl import GrblEmulator  # noqa: E402
 from clients.emulators.measure import (  # noqa: E402
+    Motion,
     actuator_limits_deg,
     fitted_peaks,
     grbl_motion,
     ratios,
     span,
     ssc32_motion,
+    ssc32_speed_noise,
 )
 from clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
 from service.server import Service  # noqa: E402
@@ -89,6 +93,7 @@ class Bench:
         self.arms = {"insomniac": robots.load("insomniac"), **robots.load_dir(arms_dir)}
         self.service = Service(self.session, self.arms)
         self.client = ArmClient(self.endpoint, timeout=10.0)
+        self.logs: list[Path] = []
 
     def close(self) -> None:
         self.client.close()
@@ -98,13 +103,16 @@ class Bench:
 
     def adapter(self, kind: str, robot: str, port: str, state_dir: str, *extra: str) -> subprocess.Popen[str]:
         env = {**os.environ, "ARMD_STATE_DIR": state_dir}
-        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", kind, robot, "--port", port,
-                                 "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
-                                cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        log = Path(state_dir) / "adapter.log"  # (a pipe nobody reads would stall the adapter once full)
+        with log.open("w") as err:
+            proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", kind, robot, "--port", port,
+                                     "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
+                                    cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
         wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30,
              "the adapter")
         if proc.poll() is not None:
-            raise RuntimeError(f"the {kind} adapter exited: {proc.stderr.read() if proc.stderr else ''}")
+            raise RuntimeError(f"the {kind} adapter exited: {log.read_text()[-2000:]}")
+        self.logs.append(log)
         return proc
 
     def at_rest(self, robot: str, goal: list[float], timeout: float) -> None:
@@ -112,19 +120,26 @@ class Bench:
             s = self.client.state(robot)
             return not s["moving"] and bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
 
-        wait(there, timeout, "the arm at its goal")
+        try:
+            wait(there, timeout, "the arm at its goal")
+        except TimeoutError:
+            said = [ln for ln in self.logs[-1].read_text().splitlines() if "WARNING" in ln or "ERROR" in ln]
+            raise TimeoutError(f"the arm did not reach its goal ({said[-1] if said else 'nothing logged'})") from None
 
 
-def run_move(b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str], stall: bool) -> float:
-    """One move; returns the planned duration [s]."""
+def run_move(b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str],
+             stall: bool) -> tuple[float, float | None]:
+    """One move; returns the planned duration [s] and when the adapter was stopped (stall) [s]."""
     r = b.client.move(robot, goal)
+    stopped = None
     if stall:
         time.sleep(0.3 * r.duration)
         proc.send_signal(signal.SIGSTOP)
+        stopped = time.monotonic()
         time.sleep(1.5)
         proc.send_signal(signal.SIGCONT)
     b.at_rest(robot, goal, r.duration + 15)
-    return r.duration
+    return r.duration, stopped
 
 
 def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
@@ -139,13 +154,18 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
             for k in range(runs):
                 for goal in SSC32_GOALS:
                     since = emu.clock()
-                    planned = run_move(b, "insomniac", goal, proc, condition == "stall")
+                    planned, stalled = run_move(b, "insomniac", goal, proc, condition == "stall")
                     time.sleep(0.2)
                     m = ssc32_motion(arm, emu, since)
-                    r = ratios(arm, m, 0.02)
                     t0, t1 = m.moving()
-                    out["v"].append(r.velocity)
-                    out["a"].append(r.acceleration)
+                    # a stall: the motion before it and after it (the board's hold at the stall is the
+                    # stop at speed no SSC-32 move can soften: docs/adapters.md)
+                    parts = [m] if stalled is None else [
+                        Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0),
+                        Motion(m.times[m.times >= stalled + 1.0], m.position[m.times >= stalled + 1.0], 0)]
+                    rs = [ratios(arm, part, 0.02, ssc32_speed_noise(arm, emu, since)) for part in parts]
+                    out["v"].append(max(r.velocity for r in rs))
+                    out["a"].append(max(r.acceleration for r in rs))
                     if condition != "stall":  # (a stall adds 1.5 s by design)
                         out["duration"].append((t1 - t0) / planned)
                 out["stop"].append(stop_latency(b, "insomniac", SSC32_GOALS[k % 2], lambda: ssc32_still(arm, emu)))
@@ -169,7 +189,7 @@ def grbl_still(emu: GrblEmulator, arm: robots.Robot) -> float | None:
     if len(t) < 2:
         return None
     end = span(t, p)[1]
-    return end if emu.state == "Idle" and time.monotonic() - end > 0.1 else None
+    return end if time.monotonic() - end > 0.1 else None
 
 
 def stop_latency(b: Bench, robot: str, goal: list[float], still: Callable[[], float | None]) -> float:
@@ -178,11 +198,10 @@ def stop_latency(b: Bench, robot: str, goal: list[float], still: Callable[[], fl
     time.sleep(0.4 * r.duration)
     asked = time.monotonic()
     stopped = b.client.stop(robot)
+    wait(lambda: not b.client.state(robot)["moving"], 10, "the adapter done with the stop")
     wait(lambda: still() is not None, 10, "the arm at rest")
     end = still()
     assert end is not None
-    state = b.client.state(robot)
-    b.at_rest(robot, state["position"], 10)
     return (end - asked) / max(stopped["duration"], 1e-3)
 
 
@@ -199,7 +218,7 @@ def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
             for k in range(runs):
                 for goal in GRBL_GOALS:
                     emu.clear_trace()
-                    planned = run_move(b, "gupta3fine", goal, proc, condition == "stall")
+                    planned, _ = run_move(b, "gupta3fine", goal, proc, condition == "stall")
                     wait(lambda: emu.state == "Idle", 10, "GRBL idle")
                     t, p = grbl_motion(arm, emu)
                     v, a = fitted_peaks(t, p, 0.04)
@@ -213,6 +232,7 @@ def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
         finally:
             for burner in hot:
                 burner.kill()
+            proc.send_signal(signal.SIGCONT)
             proc.terminate()
             proc.wait(10)
     return out
@@ -240,7 +260,10 @@ def main() -> None:
                     continue
                 for condition in CONDITIONS:
                     started = time.monotonic()
-                    res = runner(b, condition, args.runs)
+                    try:
+                        res = runner(b, condition, args.runs)
+                    except (TimeoutError, RuntimeError) as e:  # said in the table, the rest still measured
+                        res = {"failed": str(e)}
                     rows.append((name, condition, res))
                     print(f"{name} {condition}: {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
         finally:
@@ -248,6 +271,9 @@ def main() -> None:
     print("| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop |")
     print("|---|---|---|---|---|---|")
     for name, condition, res in rows:
+        if "failed" in res:
+            print(f"| {name} | {condition} | failed: {res['failed']} | | | |")
+            continue
         print(f"| {name} | {condition} | {cell(res['v'])} | {cell(res['a'])} | {cell(res['duration'])} | "
               f"{cell(res['stop'])} |")
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")

@@ -159,7 +159,11 @@ class Adapter(ABC):
         a stop is never refused), sampled at the running trajectory's rate."""
         with self._lock:
             rate = self._cmd.rate_hz if self._cmd is not None else None
-        traj = planning.plan_stop(self.robot, self.measure(), rate_hz=rate, clamp=True)
+        for _ in range(3):  # planned from a state that is still the arm's: again if planning took a while
+            asked = time.monotonic()
+            traj = planning.plan_stop(self.robot, self.measure(), rate_hz=rate, clamp=True)
+            if time.monotonic() - asked < 0.005:
+                break
         vel, acc = motion(traj.position, 1.0 / traj.rate_hz)
         return Command(ident, "stop", traj.rate_hz, traj.times, traj.position, vel, acc, traj.commands)
 
@@ -183,6 +187,7 @@ class Adapter(ABC):
         for key, callback in (("trajectory", self._on_trajectory), ("gripper", self._on_gripper),
                               ("estop", self._on_estop), ("unlock", self._on_unlock)):
             self._subs.append(self.session.declare_subscriber(f"{self._base}/{key}", callback))
+        self.stop_command("warm-up")  # (a first stop compiles the planner's code: seconds, not now but here)
         self._publish_state()  # where the arm is, before anyone can plan for it
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
         self._thread.start()

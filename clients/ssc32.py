@@ -294,7 +294,7 @@ class SSC32Adapter(SerialAdapter):
         def worst(x: float) -> float:
             return float(np.max((np.abs(dm * x - vm) - cm) / cm))
 
-        lo, hi = 1.0 / T_MAX, u_hi
+        lo, hi = max(1.0 / T_MAX, 0.25 / max(t_nominal, t_floor)), u_hi  # (no crawl: at most 4 x the schedule)
         for _ in range(60):  # convex in u: a ternary search
             m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
             if worst(m1) <= worst(m2):
@@ -331,7 +331,9 @@ class SSC32Adapter(SerialAdapter):
                 break
             arrival = actual + 2e-4  # (the time to choose again)
         if over * WINDOW_SHARE + WINDOW_SHARE - 1.0 > 1e-3:
-            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over): the least violation",
+            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over): the least violation"
+                        + (f" k={k}/{len(cmd.times) - 1} d={d} ms={ms} v0={self._at(arrival)[1]} first={first} "
+                           f"kind={cmd.kind}" if os.environ.get("ARMD_DEBUG") else ""),
                         self.robot.name, 100 * (over * WINDOW_SHARE + WINDOW_SHARE - 1.0))
         written = time.monotonic()
         arrival = max(written, self._link_free) + len(line) * 10.0 / self.baud

@@ -169,3 +169,24 @@ def test_the_simulator_has_nothing_to_unlock(sim: Any) -> None:
     assert "nothing to unlock" in rejection(events)[-1]
     session.put(f"t/{ARM}/unlock", b'{"how": "jiggle"}')
     assert "one of home, assume_rest" in rejection(events, 2)[-1]
+
+
+def test_an_adapter_finishes_what_it_accepted_when_the_service_dies(router: str, sim: Any) -> None:
+    """The service goes away mid-move: the adapter needs nothing of it to finish the move."""
+    from service.server import Service
+
+    adapter, _, events = sim
+    arm = adapter.robot
+    service_session = zenoh.open(network_config(connect=[router]))
+    service = Service(service_session, {ARM: arm}, prefix="t")
+    goal = [0.6, 1.4, -1.2, -0.4, 0.3]
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter")
+        with ArmClient(router, prefix="t") as c:
+            r = c.move(ARM, goal)
+    finally:
+        service.close()
+        service_session.close()  # mid-move: the service is gone
+    wait_for(lambda: any(e["event"] == "done" and e.get("id") == r.id for e in events), timeout=r.duration + 5,
+             what="the move done")
+    assert np.allclose(adapter.position, goal, atol=1e-9)

@@ -182,7 +182,7 @@ import subprocess  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from clients.emulators.measure import Motion, pulse_resolution, ssc32_motion  # noqa: E402
+from clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise  # noqa: E402
 from clients.emulators.measure import ratios as _ratios  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -196,9 +196,13 @@ SPEED_BAR = 1.01  # (the same rounding on a speed)
 
 
 def ratios(arm: robots.Robot, m: Motion, period: float, exact: bool = False) -> Any:
-    """The worst speed and acceleration against the limits: of the board's output (its 1 us
-    rounding allowed for), or of an exact path (``exact``: the adapter's own model)."""
-    return _ratios(arm, m, period, 0.0 if exact else pulse_resolution(arm))
+    """The worst speed and acceleration against the limits: of the board's output (the rounding
+    of its targets to whole microseconds allowed for), or of an exact path (``exact``: the
+    adapter's own model)."""
+    return _ratios(arm, m, period, 0.0 if exact else ssc32_speed_noise(arm, EMULATORS[-1], m.times[0]))
+
+
+EMULATORS: list[SSC32Emulator] = []  # the test's emulator, for its rounding (set by _moved)
 
 
 def commanded(adapter: SSC32Adapter) -> Motion:
@@ -216,6 +220,7 @@ def commanded(adapter: SSC32Adapter) -> Motion:
 
 
 def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
+    EMULATORS.append(emu)
     m = ssc32_motion(arm, emu, since=since)
     assert len(m.times) > 10, "the board did not move"
     return m
@@ -322,8 +327,8 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmC
     with SSC32Emulator() as emu:
         env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
         proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
-                                 emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)
+                                 emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                                stderr=(tmp_path / "adapter.log").open("w"), text=True)  # (a full pipe would stall it)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
             time.sleep(0.1)

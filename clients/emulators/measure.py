@@ -76,9 +76,17 @@ def ssc32_motion(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) 
     return Motion(times, q, jumps)
 
 
+def ssc32_speed_noise(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) -> FloatArray:
+    """Per joint [rad/s]: how far rounding a group move's target to a whole microsecond (half a
+    microsecond at most) moves its speed, over the shortest ``T`` the emulator received since
+    ``since``: the rounding :func:`ratios` allows for."""
+    times = [m.duration_ms for m in emulator.history if m.time >= since and m.duration_ms]
+    shortest = min(times, default=1000) / 1000.0
+    return 0.5 * pulse_resolution(robot) / shortest
+
+
 def pulse_resolution(robot: Robot) -> FloatArray:
-    """Per joint, how far one microsecond of any servo that moves it moves the joint [rad]
-    (the SSC-32's pulses are whole microseconds): the rounding :func:`ratios` allows for."""
+    """Per joint, how far one microsecond of any servo that moves it moves the joint [rad]."""
     M = np.abs(robot.actuators.M)
     res = np.array([a.resolution for a in robot.actuators.actuators])
     moved = M > 0
@@ -102,7 +110,7 @@ def _pulse_at(segments: list[tuple[float, float, float, float]], times: FloatArr
     return out
 
 
-def ratios(robot: Robot, motion: Motion, period: float, resolution: FloatArray | float = 0.0) -> Ratios:
+def ratios(robot: Robot, motion: Motion, period: float, speed_noise: FloatArray | float = 0.0) -> Ratios:
     """The worst velocity and acceleration of ``motion`` against ``robot``'s limits.
 
     Velocity: exact, per linear piece. Acceleration: each change of speed (at a piece's end)
@@ -111,9 +119,9 @@ def ratios(robot: Robot, motion: Motion, period: float, resolution: FloatArray |
     longer (the board idle, waiting for a late command) counts as one period, so that a restart
     at speed after a stall shows as the jump it is.
 
-    ``resolution`` [rad], per joint: what the controller's own rounding may move a piece's ends
-    (the SSC-32's 1 us pulses: :func:`pulse_resolution`). Each piece's speed is then uncertain
-    by ``2 * resolution / duration``, and a change of speed is counted beyond that only.
+    ``speed_noise`` [rad/s], per joint: how far the controller's own rounding may move a piece's
+    speed (the SSC-32's whole-microsecond targets: :func:`ssc32_speed_noise`); a change of speed
+    is counted beyond twice that only.
     """
     lim = robot.limits
     names = robot.joint_names
@@ -129,8 +137,7 @@ def ratios(robot: Robot, motion: Motion, period: float, resolution: FloatArray |
     vj = int(np.argmax(np.max(vr, axis=0)))
     if len(d) < 2:
         return Ratios(float(np.max(vr)), names[vj], 0.0, names[0], max(outside, 0.0))
-    noise = 2.0 * np.asarray(resolution, dtype=float) / d[:, None]  # [rad/s] per piece
-    dv = np.maximum(np.abs(np.diff(v, axis=0)) - noise[:-1] - noise[1:], 0.0)
+    dv = np.maximum(np.abs(np.diff(v, axis=0)) - 2.0 * np.asarray(speed_noise, dtype=float), 0.0)
     a = dv / np.minimum(d[:-1], period)[:, None]
     ar = np.abs(a) / lim.acceleration
     aj = int(np.argmax(np.max(ar, axis=0)))
