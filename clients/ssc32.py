@@ -400,6 +400,8 @@ class SSC32Adapter(SerialAdapter):
         self._lateness *= LATENESS_DECAY ** max(now - self._seen_at, 0.0)
         self._seen_at = now
         lead = min(max(self.lead, period, 2.0 * self._lateness), max(MAX_LEAD, period))
+        if cmd.kind == "stop":  # a stop keeps its lead short: stalled in a stop, the board holds anyway
+            lead = max(self.lead, period)
         if first:
             self._settled = last == 0
         link = max(self._link_free - now, 0.0) + self._line_bytes() * 10.0 / self.baud  # until the board has it
@@ -441,8 +443,13 @@ class SSC32Adapter(SerialAdapter):
             self._query = None
             self._reply = b""
         if self.fault:  # recovered only once the board has answered since, from where it says it is
-            if self._answered > self._faulted_at and self._resync():
-                return
+            if self._answered > self._faulted_at:
+                why = self._resync()
+                if why is None:
+                    return
+                self._faulted_at = self._answered
+                self._query = None
+                raise ControllerFault(why)
             if self._query is None:
                 self._next_query = now
         elif overdue:
@@ -485,17 +492,22 @@ class SSC32Adapter(SerialAdapter):
             self._faulted_at = self._answered
             raise
 
-    def _resync(self) -> bool:
-        """The model put where the board's last QP answer says the arm is; False if that is
-        not a pose inside the limits (the fault stays)."""
+    def _resync(self) -> str | None:
+        """The model put where the board's last QP answer says the arm is; else why not (the
+        fault stays, with that reason)."""
         pulses = self._answer
-        if pulses is None or not np.all(pulses > 0):
-            return False
+        if pulses is None:
+            return "no QP answer"
+        if not np.all(pulses > 0):
+            ch = self.channels[int(np.argmin(pulses))]
+            return (f"SSC-32 on {self.port}: channel {ch} outputs 0 us (the board was reset or powered off): "
+                    "restart the adapter to command the arm's pose again")
         q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
         if not self.robot.limits.contains(q, tol=0.02):
-            return False
+            bad = self.robot.limits.violations(q, tol=0.02)[0].message
+            return f"SSC-32 on {self.port} holds the arm outside its limits ({bad})"
         self._hold_at(np.minimum(np.maximum(q, self.robot.limits.lower), self.robot.limits.upper))
-        return True
+        return None
 
     def _compare(self, pulses: FloatArray, asked: float, answered: float) -> None:
         """A QP answer against the model, anywhere between when it was asked and answered."""

@@ -398,10 +398,11 @@ def test_a_board_that_disagrees_with_the_adapter_is_a_fault(client: ArmClient, s
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             events, sub = collect(client, "armd/sg5ut/events")
-            emu.power_cycle()  # reset behind the adapter's back: QP answers 0
-            wait_for(lambda: any(e["event"] == "fault" for e in events), timeout=5, what="a fault")
-            fault = next(e for e in events if e["event"] == "fault")
-            assert "outputs 0 us" in str(fault["reason"]) and "reset" in str(fault["reason"])
+            emu.power_cycle()  # reset behind the adapter's back: QP answers 0 (one in flight may be lost: no answer)
+            said = lambda: [str(e["reason"]) for e in events if e["event"] == "fault"]  # noqa: E731
+            wait_for(lambda: any("outputs 0 us" in r and "reset" in r for r in said()), timeout=5, what="the fault")
+            time.sleep(0.5)
+            assert service._adapter_count(arm) == 0  # type: ignore[attr-defined]  # (and it stays faulted: no recovery)
             sub.undeclare()  # type: ignore[attr-defined]
         finally:
             adapter.close()

@@ -27,6 +27,7 @@ from .grbl import GrblEmulator
 from .ssc32 import SSC32Emulator
 
 FloatArray = NDArray[np.float64]
+MIN_PIECE = 1e-4  # [s] pieces shorter than this are not counted as pieces of motion
 
 
 @dataclass(frozen=True)
@@ -128,7 +129,7 @@ def ratios(robot: Robot, motion: Motion, period: float, speed_noise: FloatArray 
     t, q = motion.times, motion.position
     outside = float(np.max(np.maximum(q - lim.upper, lim.lower - q), initial=0.0)) if len(q) else 0.0
     dt = np.diff(t)
-    keep = dt > 1e-9
+    keep = dt > MIN_PIECE  # (two commands a few microseconds apart: one change, not a spike)
     if len(t) < 2 or not keep.any():
         return Ratios(0.0, names[0], 0.0, names[0], max(outside, 0.0))
     d = dt[keep]
