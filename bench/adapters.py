@@ -117,8 +117,9 @@ class Bench:
 
     def at_rest(self, robot: str, goal: list[float], timeout: float) -> None:
         def there() -> bool:
-            s = self.client.state(robot)
-            return not s["moving"] and bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
+            s = self.client.state(robot)  # (as the adapter says: what the service last commanded is no proof)
+            return s["source"] == "adapter" and not s["moving"] and \
+                bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
 
         try:
             wait(there, timeout, "the arm at its goal")
@@ -151,7 +152,7 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
         hot = burners(2) if condition == "busy" else []
         try:
             time.sleep(0.2)
-            for k in range(runs):
+            for _ in range(runs):
                 for goal in SSC32_GOALS:
                     since = emu.clock()
                     planned, stalled = run_move(b, "insomniac", goal, proc, condition == "stall")
@@ -168,7 +169,8 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
                     out["a"].append(max(r.acceleration for r in rs))
                     if condition != "stall":  # (a stall adds 1.5 s by design)
                         out["duration"].append((t1 - t0) / planned)
-                out["stop"].append(stop_latency(b, "insomniac", SSC32_GOALS[k % 2], lambda: ssc32_still(arm, emu)))
+                # (the arm is at GOALS[1]: the stop is asked on the way back)
+                out["stop"].append(stop_latency(b, "insomniac", SSC32_GOALS[0], lambda: ssc32_still(arm, emu)))
         finally:
             for p in hot:
                 p.kill()
@@ -215,7 +217,7 @@ def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
         hot = burners(2) if condition == "busy" else []
         try:
             wait(lambda: b.client.state("gupta3fine").get("homed") is True, 10, "homed")
-            for k in range(runs):
+            for _ in range(runs):
                 for goal in GRBL_GOALS:
                     emu.clear_trace()
                     planned, _ = run_move(b, "gupta3fine", goal, proc, condition == "stall")
@@ -228,7 +230,7 @@ def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
                         t0, t1 = span(t, p)
                         out["duration"].append((t1 - t0) / planned)
                 emu.clear_trace()
-                out["stop"].append(stop_latency(b, "gupta3fine", GRBL_GOALS[k % 2], lambda: grbl_still(emu, arm)))
+                out["stop"].append(stop_latency(b, "gupta3fine", GRBL_GOALS[0], lambda: grbl_still(emu, arm)))
         finally:
             for burner in hot:
                 burner.kill()
@@ -249,6 +251,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="move pairs and stops per condition (default 3)")
     parser.add_argument("--only", choices=["ssc32", "grbl"], help="one adapter only")
+    parser.add_argument("--condition", choices=CONDITIONS, help="one condition only")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as arms:
         fine_gupta(Path(arms))
@@ -259,11 +262,14 @@ def main() -> None:
                 if args.only not in (None, name):
                     continue
                 for condition in CONDITIONS:
+                    if args.condition not in (None, condition):
+                        continue
                     started = time.monotonic()
                     try:
                         res = runner(b, condition, args.runs)
                     except (TimeoutError, RuntimeError) as e:  # said in the table, the rest still measured
                         res = {"failed": str(e)}
+
                     rows.append((name, condition, res))
                     print(f"{name} {condition}: {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
         finally:
