@@ -331,10 +331,9 @@ class SSC32Adapter(SerialAdapter):
                 break
             arrival = actual + 2e-4  # (the time to choose again)
         if over * WINDOW_SHARE + WINDOW_SHARE - 1.0 > 1e-3:
-            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over): the least violation"
-                        + (f" k={k}/{len(cmd.times) - 1} d={d} ms={ms} v0={self._at(arrival)[1]} first={first} "
-                           f"kind={cmd.kind}" if os.environ.get("ARMD_DEBUG") else ""),
-                        self.robot.name, 100 * (over * WINDOW_SHARE + WINDOW_SHARE - 1.0))
+            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over, toward sample %d of %d): "
+                        "the least violation", self.robot.name, 100 * (over * WINDOW_SHARE + WINDOW_SHARE - 1.0),
+                        k, len(cmd.times) - 1)
         written = time.monotonic()
         arrival = max(written, self._link_free) + len(line) * 10.0 / self.baud
         p0 = self._at(arrival)[0]

@@ -155,7 +155,7 @@ import select
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 from .pty import PtyEmulator
@@ -276,6 +276,23 @@ class _Homing:
     mask: list[int] = field(default_factory=list)  # the axes of the cycle being homed
     approach: bool = True
     pause: float = 0.0  # [machine s] the debounce delay ($26) still to wait
+
+
+def _words(line: str) -> Iterator[tuple[str, float] | int]:
+    """GRBL's word-by-word read of a block (gc_execute_line): ``(letter, value)`` per word, or,
+    where a word cannot be read, its status code (1: not a letter, 2: no number) and nothing more."""
+    i = 0
+    while i < len(line):
+        letter = line[i]
+        if not "A" <= letter <= "Z":
+            yield 1
+            return
+        m = _NUMBER.match(line, i + 1)
+        if not m:
+            yield 2
+            return
+        i = m.end()
+        yield letter, float(m.group())
 
 
 class GrblEmulator(PtyEmulator):
@@ -1450,16 +1467,10 @@ class GrblEmulator(PtyEmulator):
         in its own G90/G91, G20/G21 or G53, changing no modal state; beyond soft limits error 15."""
         words: dict[str, float] = {}
         groups: dict[str, int] = {}
-        i = 0
-        while i < len(line):
-            letter = line[i]
-            if not "A" <= letter <= "Z":
-                return 1
-            m = _NUMBER.match(line, i + 1)
-            if not m:
-                return 2
-            i = m.end()
-            value = float(m.group())
+        for word in _words(line):
+            if isinstance(word, int):
+                return word
+            letter, value = word
             if letter in "GM":
                 code = int(value)
                 if code not in (_G_GROUPS if letter == "G" else _M_GROUPS):
@@ -1509,16 +1520,10 @@ class GrblEmulator(PtyEmulator):
         groups: dict[str, int] = {}
         mantissas: dict[str, int] = {}
         axis_command = ""  # "motion" or "non-modal" (G10, G92), as GRBL's axis_command
-        i = 0
-        while i < len(line):
-            letter = line[i]
-            if not "A" <= letter <= "Z":
-                return 1
-            m = _NUMBER.match(line, i + 1)
-            if not m:
-                return 2
-            i = m.end()
-            value = float(m.group())
+        for word in _words(line):
+            if isinstance(word, int):
+                return word
+            letter, value = word
             if letter in "GM":
                 code, mantissa = int(value), round(100 * (value - int(value)))
                 table = _G_GROUPS if letter == "G" else _M_GROUPS
