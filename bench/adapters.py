@@ -2,7 +2,10 @@
 
 Per adapter on its emulator (the SSC-32 for insomniac, GRBL for gupta3), the adapter a process
 of its own (``armd adapter ...``, as a user runs it) and the service in this one, in four
-conditions:
+conditions. The SSC-32 emulator runs in a process of its own too, at real-time priority where
+the system allows it (``clients/emulators/process.py``): a board has its own CPU, and an
+emulator starved beside the busy processes would stamp commands late. (GRBL's emulator stays
+in this process, where its figures meet their bars.)
 
 * idle: nothing else runs;
 * busy: two processes spin beside it (the machine has 2 cores);
@@ -54,6 +57,7 @@ from clients.emulators.measure import (  # noqa: E402
     ssc32_motion,
     ssc32_speed_noise,
 )
+from clients.emulators.process import EmulatorProcess  # noqa: E402
 from clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
 from service.server import Service  # noqa: E402
 from service.zconfig import free_endpoint, network_config  # noqa: E402
@@ -147,7 +151,7 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     arm = b.arms["insomniac"]
     out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
     with tempfile.TemporaryDirectory() as state, \
-            SSC32Emulator(query_delay=0.15 if condition == "slow board" else 1e-4) as emu:
+            EmulatorProcess(SSC32Emulator, query_delay=0.15 if condition == "slow board" else 1e-4) as emu:
         proc = b.adapter("ssc32", "insomniac", emu.port, state)
         hot = burners(2) if condition == "busy" else []
         try:
@@ -179,7 +183,7 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     return out
 
 
-def ssc32_still(arm: robots.Robot, emu: SSC32Emulator) -> float | None:
+def ssc32_still(arm: robots.Robot, emu: EmulatorProcess) -> float | None:
     """When the board's output last changed [s], if it has been still for 0.1 s since."""
     m = ssc32_motion(arm, emu, emu.clock() - 5.0)
     end = m.moving()[1]

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import threading
 import time
 import uuid
@@ -91,6 +92,20 @@ def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
                          field="robot")
     return drives
 
+
+
+LOOP_PRIORITY = 20  # SCHED_FIFO priority of an adapter's control loop (ros2_control's controller manager uses 50)
+
+
+def _prioritise_this_thread(name: str) -> None:
+    """The control loop ahead of ordinary processes (SCHED_FIFO), where the system permits it
+    (root, or CAP_SYS_NICE, or an rtprio limit in /etc/security/limits.conf): on a busy machine,
+    a write held up after it was timed reaches the board late. Else as it is, said once."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(LOOP_PRIORITY))  # (0: this thread, on Linux)
+        log.info("%s: the control loop runs at real-time priority (SCHED_FIFO %d)", name, LOOP_PRIORITY)
+    except (PermissionError, OSError, AttributeError) as e:
+        log.info("%s: the control loop runs at normal priority (no SCHED_FIFO: %s)", name, e)
 
 class Adapter(ABC):
     kind = "adapter"
@@ -325,6 +340,7 @@ class Adapter(ABC):
             self.event("rejected", reason=f"unlock: {e.message}", error=e.to_dict())
 
     def _loop(self) -> None:
+        _prioritise_this_thread(self.robot.name)
         next_state = next_check = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()

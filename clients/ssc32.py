@@ -7,18 +7,20 @@ defaults to the arm's ``[controller] baud`` (the SSC-32U leaves the factory at 9
 The board moves each servo linearly from where it is to a group move's pulse in ``T``
 milliseconds, then holds; a new group move replaces the running one from where the servos
 are. The adapter keeps a model of that motion (where the board is heading, from where, until
-when, as the board interpolates it) and streams a trajectory one group move at a time, in
-order, never skipping a sample:
+when, as the board interpolates it) and streams a trajectory one group move a period:
 
-- Each move is sent ``lead`` before the board reaches its previous one, toward the next
-  sample, so the board is never idle while the adapter is on time, and a late adapter (up to
-  ``lead``) only shortens the move in hand. Its ``T`` is the longest of: the trajectory's own
-  schedule (one sample period after the previous move's end), every joint's distance over its
-  velocity limit, and what keeps the change of speed from the move in hand within every
-  acceleration limit (over one period). So a late adapter, a stalled process or a slow link
-  re-time the rest of the trajectory: slower, from where the board is, ramping up from rest
-  when the board had stopped; the board is never asked to go faster than the limits, and
-  nothing catches up by jumping.
+- Each move lasts ``lead`` and a period, and the next one replaces it a period in: the board
+  is never idle while the adapter is on time, and a late adapter (up to ``lead``) only
+  lengthens the move in hand. Its speed, per joint, is the plan's average over the move
+  ahead, from where the board is (a board off the plan converges on it), within one period's
+  change of speed of the move in hand (every acceleration limit, over the time since the
+  previous change) and within every velocity limit, whole-microsecond pulses allowed for; its
+  target is where that speed leads, kept inside the position limits. The plan's clock
+  advances with the board's, by at most ``MAX_SLIP`` periods a move: a late adapter, a
+  stalled process or a slow link re-time the rest of the trajectory, slower, from where the
+  board is, ramping up from rest when the board had stopped; nothing catches up by jumping.
+  The last move ends at the trajectory's end, once the board may stop there within the
+  limits; a stop never reverses a joint.
 - Bandwidth: each move's bytes, times the moves per second, against the link (10 bits a byte
   at the baud rate). A trajectory sampled faster than the link carries is streamed every
   ``stride``-th sample (at most 60% of the link: the rest is for the checks); one that would
@@ -68,10 +70,8 @@ LEAD = 0.05  # [s] at least this long before the board reaches a move, the next 
 MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine
 LATENESS_DECAY = 0.5  # per second: how fast the lead forgets a late pass of the control loop
 QP_TOL = 25.0  # [us] how far a QP answer may be from the model (QP answers in 10 us, the model rounds)
-T_MAX = 65.535  # [s] the longest T the board takes
-WINDOW_SHARE = 1.0  # a change of speed is kept within a * this * the time since the previous one
-FLOOR_SHARE = 0.5  # a move lasts at least the lead and this much of a period: the next one is sent a period later
-MAX_AHEAD = 4  # streamed samples a group move may pass over when the board is ahead
+ARRIVAL_TOL = 2e-4  # [s] how far from when a move is aimed for the board may have it (else it is aimed again)
+MAX_SLIP = 1.5  # periods: the most the plan's clock advances between two moves (later: the plan waits)
 RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
 
 
@@ -112,14 +112,19 @@ class SSC32Adapter(SerialAdapter):
                          state_hz=state_hz, check_period=0.02, serial_port=serial_port)
         lim = robot.limits
         self._vmax, self._amax = lim.velocity, lim.acceleration
+        amap = robot.actuators  # [rad] per joint, half a microsecond of the servo that moves it most finely
+        self._half_pulse = np.array([0.5 * max(a.resolution / abs(m) for a, m in zip(amap.actuators, amap.M[:, j],
+                                                                                 strict=True) if m)
+                                     for j in range(robot.nq)])
         # the board's motion, as the model has it: linear from _p0 at _t0 to _p1 at _t1, then held
         now = time.monotonic()
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
         self._t0 = self._t1 = now
         self._link_free = now  # [s] when the link has carried everything written so far
         self._pieces: collections.deque[tuple[FloatArray, float, FloatArray, float]] = collections.deque(maxlen=256)
-        self._k = 0  # the running trajectory's sample the board is heading to
-        self._settled = True  # the board heads for the last sample slowly enough to stop there
+        self._tau = 0.0  # [s] the plan's time the running move was aimed from
+        self._rhythm = now  # [s] the earliest the next move of a trajectory should reach the board
+        self._settled = True  # the board heads for the trajectory's end slowly enough to stop there
         self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
         self._seen_at = now
         self._stride = 1
@@ -263,112 +268,87 @@ class SSC32Adapter(SerialAdapter):
                 return _on_piece(p0, t0, p1, t1, t)[0]
         return self._pieces[0][0].copy() if self._pieces else self._at(t)[0]
 
-    def _time_for(self, d: FloatArray, v0: FloatArray, c: FloatArray, cap: FloatArray | None, t_nominal: float,
-                  t_floor: float) -> tuple[float, float]:
-        """A group move's time [s] for a displacement ``d`` [rad] from speed ``v0`` [rad/s], and
-        by how much it breaks an acceleration limit (0: not at all; else the least it can).
-
-        In ``u = 1 / T`` each limit is an interval, since the move's speed is ``u * d``: every
-        joint's velocity limit and ``cap``, and ``t_floor`` [s] (the move must last until the
-        next one is sent: a board that arrives early stops), bound it from above (hard), its
-        change of speed within ``c`` [rad/s] from both sides. Within those, the time closest to
-        the schedule ``t_nominal``.
-        """
-        vmax = self._vmax if cap is None else np.minimum(self._vmax, cap)
-        moving = np.abs(d) > 1e-12
-        u_hi = 1.0 / max(t_floor, 1e-3)
-        if moving.any():
-            u_hi = min(u_hi, float(np.min(vmax[moving] / np.abs(d[moving]))))
-        if not np.all(np.abs(v0[~moving]) <= c[~moving] * (1 + 1e-9)):  # a joint with no way to go must stop
-            stopped = ~moving & (np.abs(v0) > c)
-            return 1.0 / u_hi, float(np.max((np.abs(v0[stopped]) - c[stopped]) / c[stopped]))
-        if not moving.any():
-            return max(t_nominal, t_floor), 0.0
-        dm, vm, cm = d[moving], v0[moving], c[moving]
-        ends = np.sort(np.stack([(vm - cm) / dm, (vm + cm) / dm]), axis=0)
-        u_lo = max(float(np.max(ends[0])), 1.0 / T_MAX)
-        u_top = min(u_hi, float(np.min(ends[1])))
-        if u_lo <= u_top:  # the schedule, where the limits allow it
-            return 1.0 / min(max(1.0 / max(t_nominal, 1e-3), u_lo), u_top), 0.0
-
-        def worst(x: float) -> float:
-            return float(np.max((np.abs(dm * x - vm) - cm) / cm))
-
-        lo, hi = max(1.0 / T_MAX, 0.25 / max(t_nominal, t_floor)), u_hi  # (no crawl: at most 4 x the schedule)
-        for _ in range(60):  # convex in u: a ternary search
-            m1, m2 = lo + (hi - lo) / 3, hi - (hi - lo) / 3
-            if worst(m1) <= worst(m2):
-                hi = m2
-            else:
-                lo = m1
-        u = (lo + hi) / 2
-        return 1.0 / u, max(worst(u), 0.0)
-
-    def _to_ms(self, T: float, d: FloatArray, v0: FloatArray, c: FloatArray, cap: FloatArray | None) -> int:
-        """``T`` [s] in whole milliseconds, rounded the way that keeps the limits (never faster)."""
-        vmax = self._vmax if cap is None else np.minimum(self._vmax, cap)
-        ms_min = max(1, math.ceil(float(np.max(np.abs(d) / vmax, initial=0.0)) * 1000.0 - 1e-6))
-
-        def violation(ms: int) -> float:
-            return float(np.max(np.abs(d * (1000.0 / ms) - v0) - c, initial=0.0))
-
-        ms = max(ms_min, round(T * 1000.0))
-        return min((m for m in (ms, ms + 1, ms - 1, ms + 2) if ms_min <= m <= 65535), key=violation)
-
-    def _stream(self, cmd: Command, now: float, first: bool, period: float, lead: float) -> None:
-        """Send the next group move of ``cmd``: toward the next streamed sample, or a later one
-        when the board is ahead and the next is too close to reach within the limits (its chord,
-        like every chord of the plan, is within them); toward the last sample, slowly enough to
-        stop there (``_settled`` once it is). Timed for when the board will have it: if this
-        thread was held up meanwhile, timed again."""
-        base = now + lead if first else max(self._t1, now)  # when the board reaches sample _k (the schedule)
-        arrival = max(now, self._link_free) + self._line_bytes() * 10.0 / self.baud  # the board starts it then
+    def _stream(self, cmd: Command, first: bool, period: float, lead: float) -> None:
+        """Send the next group move of ``cmd`` (:meth:`_aim`), timed for when the board will
+        have it: if this thread was held up meanwhile, aimed again."""
+        ms = max(1, round((lead + period) * 1000.0))  # the next move replaces it a period in: a lead to spare
+        arrival = max(time.monotonic(), self._link_free) + self._line_bytes() * 10.0 / self.baud
         for _ in range(3):
-            k, ms, d, over = self._choose(cmd, arrival, base, period, lead)
-            line = self._line(cmd.commands[k], ms)
+            x, tau, final = self._aim(cmd, arrival, first, period, ms / 1000.0)
+            pulses = self.robot.actuators.commands(x)
+            line = self._line(pulses, ms)
             actual = max(time.monotonic(), self._link_free) + len(line) * 10.0 / self.baud
-            if abs(actual - arrival) <= 2e-4:
+            if abs(actual - arrival) <= ARRIVAL_TOL:
                 break
-            arrival = actual + 2e-4  # (the time to choose again)
-        if over * WINDOW_SHARE + WINDOW_SHARE - 1.0 > 1e-3:
-            log.warning("%s: no group move keeps every acceleration limit (%.0f%% over, toward sample %d of %d): "
-                        "the least violation", self.robot.name, 100 * (over * WINDOW_SHARE + WINDOW_SHARE - 1.0),
-                        k, len(cmd.times) - 1)
+            arrival = actual + ARRIVAL_TOL  # (the time to aim again)
         written = time.monotonic()
         arrival = max(written, self._link_free) + len(line) * 10.0 / self.baud
         p0 = self._at(arrival)[0]
         self._write(line)
-        self._p0, self._t0, self._p1, self._t1 = p0, arrival, cmd.position[k].copy(), arrival + ms / 1000.0
+        target = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
+        self._p0, self._t0, self._p1, self._t1 = p0, arrival, target, arrival + ms / 1000.0
         self._pieces.append((self._p0, self._t0, self._p1, self._t1))
-        self._k = k
-        stop = self._amax * WINDOW_SHARE * period  # a speed the board may stop from, at a move's end
-        self._settled = k == len(cmd.times) - 1 and bool(np.all(np.abs(d) * 1000.0 / ms <= stop * (1 + 1e-6) + 1e-9))
+        self._tau = tau
+        self._rhythm = arrival + period  # the next move arrives no sooner: no piece shorter than a period
+        self._settled = final
 
-    def _choose(self, cmd: Command, arrival: float, base: float, period: float,
-                lead: float) -> tuple[int, int, FloatArray, float]:
-        """The sample to head for and the move's time [ms], for a move the board starts at
-        ``arrival`` [s]; with the displacement from where the board is then, and the least
-        violation of an acceleration limit (0: none)."""
+    def _aim(self, cmd: Command, arrival: float, first: bool, period: float,
+             span: float) -> tuple[FloatArray, float, bool]:
+        """A group move the board starts at ``arrival`` [s] and that lasts ``span`` [s]: its
+        target [rad], the plan's time it was aimed from [s], and whether it is the last one
+        (it ends at the trajectory's end, slowly enough to stop there).
+
+        Each joint's speed is the plan's average over the move ahead, from where the board
+        is (so a board ahead of or behind the plan converges on it), within one period's
+        change of speed of the move in hand (the acceleration limit, over the time since the
+        previous change) and within the velocity limit; the target is where that speed
+        leads in ``span``, kept inside the position limits. The plan's clock advances with
+        the board's, by at most ``MAX_SLIP`` periods a move: a late move re-times the rest
+        of the trajectory, slower, from where the board is.
+        """
         p0, v0 = self._at(arrival)
-        # the change of speed, over the time since the previous change (at most a period)
-        c = self._amax * WINDOW_SHARE * min(period, max(arrival - self._t0, 1e-3))
-        last = len(cmd.times) - 1
-        floor = lead + FLOOR_SHARE * period  # not reached before the next move is sent
-        best: tuple[float, int, float] | None = None
-        k = self._k
-        for _ in range(MAX_AHEAD):
-            k = min(k + self._stride, last)
-            # when the schedule has the board there (past the last sample, the plan holds it: a period more)
-            t_nominal = base + max(cmd.times[k] - cmd.times[self._k], period) - arrival
-            T, over = self._time_for(cmd.position[k] - p0, v0, c, None, t_nominal, floor)
-            if best is None or over < best[0] - 1e-9:
-                best = (over, k, T)
-            if over == 0.0 or k == last:
-                break
-        assert best is not None
-        over, k, T = best
-        d = cmd.position[k] - p0
-        return k, self._to_ms(T, d, v0, c, None), d, over
+        tau = 0.0 if first else self._tau + min(arrival - self._t0, MAX_SLIP * period)
+        # [rad/s] how far a speed may come out from what is aimed: whole-microsecond pulses, and a
+        # start up to ARRIVAL_TOL from when it is aimed for (the board a little farther on, or not as far)
+        rounding = (self._half_pulse + np.abs(v0) * ARRIVAL_TOL) / span
+        c = np.maximum(self._amax * min(period, max(arrival - self._t0, 1e-3)) - rounding, 0.0)
+        goal = self.robot.actuators.joints_from_commands(cmd.commands[-1], tol=np.inf)  # (as the board has it)
+        if cmd.kind == "stop":  # a joint already past the stop's end stays where it is: a stop never reverses
+            way = cmd.position[-1] - cmd.position[0]
+            goal = np.where((goal - p0) * way < 0.0, p0, goal)
+        if tau + span >= cmd.duration:  # the plan ends within this move: the goal, once the board may stop there
+            d = goal - p0
+            if np.all(np.abs(d) <= self._amax * period * span * (1 + 1e-9)) and \
+                    np.all(np.abs(d / span - v0) <= c * (1 + 1e-9)):
+                return goal.copy(), tau, True
+        ahead = cmd.sample_at(tau + span)[0]
+        v = np.clip((ahead - p0) / span, v0 - c, v0 + c)
+        if cmd.kind == "stop":  # a stop never reverses a joint
+            v = np.where(v * v0 < 0.0, 0.0, v)
+        v = np.clip(v, rounding - self._vmax, self._vmax - rounding)
+        return self._inside(p0, p0 + v * span), tau, False
+
+    def _inside(self, p0: FloatArray, x: FloatArray) -> FloatArray:
+        """``x`` brought back toward ``p0``, along the way between them, as far as it must be to keep
+        every position limit (the box, the coupled limits and the servos' ranges)."""
+        if self._within(x):
+            return x
+        if not self._within(p0):
+            return np.minimum(np.maximum(p0, self.robot.limits.lower), self.robot.limits.upper)
+        lo, hi = 0.0, 1.0
+        for _ in range(30):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if self._within(p0 + mid * (x - p0)) else (lo, mid)
+        return p0 + lo * (x - p0)
+
+    def _within(self, q: FloatArray) -> bool:
+        if not self.robot.limits.contains(q, tol=0.0):
+            return False
+        try:
+            self.robot.actuators.commands(q)
+        except BadRequest:
+            return False
+        return True
 
     # -- the Adapter hooks ----------------------------------------------------------------------
 
@@ -390,10 +370,9 @@ class SSC32Adapter(SerialAdapter):
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
         self._poll_reply()
         now = time.monotonic()
-        last = len(cmd.times) - 1
         if first:
-            self._k = 0
             self._stride = self.stride_for(cmd)
+            self._settled = False
         period = self._stride / cmd.rate_hz
         # the lead grows with how late this loop has run lately (a busy machine), up to MAX_LEAD
         self._lateness *= LATENESS_DECAY ** max(now - self._seen_at, 0.0)
@@ -401,17 +380,15 @@ class SSC32Adapter(SerialAdapter):
         lead = min(max(self.lead, period, 2.0 * self._lateness), max(MAX_LEAD, period))
         if cmd.kind == "stop":  # a stop keeps its lead short: stalled in a stop, the board holds anyway
             lead = max(self.lead, period)
-        if first:
-            self._settled = last == 0
         link = max(self._link_free - now, 0.0) + self._line_bytes() * 10.0 / self.baud  # until the board has it
-        due = self._t1 - lead - link  # when the next move should be written
-        if (self._k < last or not self._settled) and (first or now >= due):
+        due = self._rhythm - link  # when the next move should be written: a period after this one
+        if not self._settled and (first or now >= due):
             if not first:
                 self._lateness = max(self._lateness, now - due)
-                if now + link > self._t1 and self._k < last:  # the board got there first, and stopped
+                if now + link > self._t1:  # the board got there first, and stopped
                     self._stopped_late(cmd, now + link - self._t1)
-            self._stream(cmd, now, first, period, lead)
-        return self._k >= last and self._settled and now >= self._t1
+            self._stream(cmd, first, period, lead)
+        return self._settled and now >= self._t1
 
     def _stopped_late(self, cmd: Command, late: float) -> None:
         """Said when the control loop ran so late (a stalled process) that the board finished its

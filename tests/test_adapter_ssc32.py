@@ -13,6 +13,7 @@ import zenoh
 
 import robots
 from clients import ArmClient, ServiceError
+from clients.emulators.process import EmulatorProcess
 from clients.emulators.ssc32 import SSC32Emulator
 from clients.ssc32 import SSC32Adapter
 from service.zconfig import network_config
@@ -193,6 +194,7 @@ GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint ne
 # change within the limit (test_the_adapters_own_model_keeps_the_limits).
 ACCEL_BAR = 1.05
 SPEED_BAR = 1.01  # (the same rounding on a speed)
+BUSY_ACCEL_BAR = 1.1  # beside two busy processes: writes held up after they were aimed (this interpreter is busy too)
 
 
 def ratios(arm: robots.Robot, m: Motion, period: float, exact: bool = False) -> Any:
@@ -284,12 +286,13 @@ def test_the_adapters_own_model_keeps_the_limits(client: ArmClient, service: obj
 def test_busy_processes_do_not_break_the_promise(client: ArmClient, service: object,
                                                  adapter_session: zenoh.Session) -> None:
     """Two processes spinning beside the adapter (on a 2-core machine): late ticks re-time the
-    stream, never speed it up."""
+    stream, never speed it up. The board is an emulator in a process of its own (a board has its
+    own CPU: in this interpreter it would stamp each command when its thread gets to run, late)."""
     arm = robots.load("insomniac")
     burn = [subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+20\nwhile time.time()<t: pass"])
             for _ in range(2)]
     try:
-        with SSC32Emulator() as emu:
+        with EmulatorProcess(SSC32Emulator) as emu:
             adapter = SSC32Adapter(adapter_session, arm, emu.port)
             try:
                 wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
@@ -297,17 +300,15 @@ def test_busy_processes_do_not_break_the_promise(client: ArmClient, service: obj
                 since = emu.clock()
                 r = client.move("insomniac", GOAL, wait=True, wait_timeout=20)
                 time.sleep(0.3)
-                m = _moved(arm, emu, since)
-                rr = ratios(arm, m, 0.02)
+                m = ssc32_motion(arm, emu, since=since)  # type: ignore[arg-type]
+                rr = _ratios(arm, m, 0.02, ssc32_speed_noise(arm, emu, since))  # type: ignore[arg-type]
                 assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
-                # Speeds are hard limits. A change of speed may come out a little over its limit on a busy
-                # machine, where a write can be held up after it was timed (here the adapter shares one
-                # interpreter with the emulator, the service and the router: bench/adapters.py runs it alone).
+                # Each move is aimed within the limits for when the board will have it; a write held up
+                # after it was aimed (this interpreter also runs the service and the router) starts it a
+                # little later, from a little farther on: a change of speed a few percent sharper.
                 mine = ratios(arm, commanded(adapter), 0.02, exact=True)
-                assert mine.velocity <= 1.0 + 1e-6 and mine.acceleration <= 1.2, mine
-                # The emulator, starved of the CPU too, stamps each command when its thread gets to read
-                # it (a real board when it arrives): its view of the changes of speed is ms-late.
-                assert rr.acceleration <= 2.0, rr
+                assert mine.velocity <= 1.0 + 1e-6 and mine.acceleration <= 1.05, mine
+                assert rr.acceleration <= BUSY_ACCEL_BAR, rr
                 assert np.max(np.abs(m.position[-1] - np.array(GOAL))) < 3e-3
                 assert m.moving()[1] - m.moving()[0] <= 2.0 * r.duration + 0.5
             finally:

@@ -50,8 +50,10 @@ The link and the board's timing (``baud``, ``query_delay``; all times on ``clock
 Where the real board differs, or may:
 
 - It drives real servos, which have their own maximum speed and lag; here the pulse *is* the position.
-- Its pulse output changes in steps (its update period and resolution are not documented), not continuously;
-  ``QP`` here truncates the pulse to 10 us (whether the board rounds is not documented).
+- It outputs each channel's pulse once every 20 ms (the guide: an R/C pulse "repeated every 20ms"), so a
+  servo sees the interpolation at each frame; here the output is the interpolation itself, continuous
+  in time (stricter: a change of speed between two frames counts as it happens). Its resolution is not
+  documented. ``QP`` here truncates the pulse to 10 us (whether the board rounds is not documented).
 - Whether the board parses further commands while it waits to answer a query is not documented: here it
   does (the reply is delayed, the parser is not). Its own receive buffer is not modelled: it never overflows.
 - A host that opens the port at another rate than ``baud`` (pyserial sets it on the terminal) gets
