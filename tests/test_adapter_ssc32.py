@@ -4,7 +4,12 @@
 from __future__ import annotations
 
 import json
+import os
+import signal
+import subprocess
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -13,6 +18,8 @@ import zenoh
 
 import robots
 from clients import ArmClient, ServiceError
+from clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
+from clients.emulators.measure import ratios as _ratios
 from clients.emulators.process import EmulatorProcess
 from clients.emulators.ssc32 import SSC32Emulator
 from clients.ssc32 import SSC32Adapter
@@ -176,15 +183,6 @@ def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Sessio
 
 
 # -- the promise, at the board: every joint within its limits, at every moment ----------------------
-
-import os  # noqa: E402
-import signal  # noqa: E402
-import subprocess  # noqa: E402
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise  # noqa: E402
-from clients.emulators.measure import ratios as _ratios  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint near its velocity limit
