@@ -38,6 +38,7 @@ from collections import OrderedDict
 from typing import Any, TypeVar
 
 import numpy as np
+import orjson
 import serial
 import zenoh
 
@@ -46,7 +47,7 @@ from planning import JointState
 from robots import ArmdError, BadRequest, PositionUnknown, Robot
 from service.protocol import encode
 
-from .trajectory_message import Command, motion, parse
+from .trajectory_message import MAX_BYTES, Command, motion, parse
 
 log = logging.getLogger("armd.adapter")
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -138,6 +139,7 @@ class Adapter(ABC):
                                                     congestion_control=zenoh.CongestionControl.BLOCK)
         self._stop = threading.Event()
         self._token: Any = None
+        self._seq = 0  # the state's sequence number: the service ignores one not above the last
         self._subs: list[Any] = []
         self.gripper_opening: float | None = None
         self._thread = threading.Thread(target=self._loop, name=f"{self.kind}-{robot.name}", daemon=True)
@@ -203,8 +205,8 @@ class Adapter(ABC):
                               ("estop", self._on_estop), ("unlock", self._on_unlock)):
             self._subs.append(self.session.declare_subscriber(f"{self._base}/{key}", callback))
         self.stop_command("warm-up")  # (a first stop compiles the planner's code: seconds, not now but here)
-        self._publish_state()  # where the arm is, before anyone can plan for it
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
+        self._publish_state()  # where the arm is, at once (the service trusts states of live tokens only)
         self._thread.start()
 
     def event(self, event: str, **fields: Any) -> None:
@@ -226,11 +228,12 @@ class Adapter(ABC):
             self.event("rejected", reason=f"gripper command: {e}")
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
+        payload = sample.payload.to_bytes()
         try:
-            cmd = parse(self.robot, sample.payload.to_bytes())
+            cmd = parse(self.robot, payload)
         except ArmdError as e:
             log.warning("%s: trajectory rejected: %s", self.robot.name, e.message)
-            self.event("rejected", reason=e.message, error=e.to_dict())
+            self.event("rejected", **_claimed_id(payload), reason=e.message, error=e.to_dict())
             return
         if cmd.kind == "stop":  # a stop is never refused, and always from the adapter's own state
             self.emergency_stop(cmd.id, "stop trajectory")
@@ -432,7 +435,8 @@ class Adapter(ABC):
             "robot": self.robot.name, "adapter": self.id, "kind": self.kind,
             "position": s.position.tolist(), "velocity": s.velocity.tolist(), "acceleration": s.acceleration.tolist(),
             "moving": moving, "trajectory": None if cmd is None else cmd.id, "fault": self.fault,
-            "homed": self.homed, "source": self.position_source, "time": time.time()})
+            "homed": self.homed, "source": self.position_source, "time": time.time(), "seq": self._seq})
+        self._seq += 1
         try:
             self._state_pub.put(message)
         except zenoh.ZError:  # the session is gone: nobody to tell
@@ -467,3 +471,15 @@ class SerialAdapter(Adapter):
             self.serial = serial_port
             self.serial.baudrate, self.serial.timeout, self.serial.write_timeout = baud, timeout, write_timeout
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=check_period)
+
+
+def _claimed_id(payload: bytes) -> dict[str, str]:
+    """``{"id": ...}`` of a refused trajectory message, if it names one (so that whoever sent it
+    hears the refusal), else nothing."""
+    if len(payload) > MAX_BYTES:
+        return {}
+    try:
+        ident = orjson.loads(payload).get("id")
+    except (orjson.JSONDecodeError, AttributeError):
+        return {}
+    return {"id": ident} if isinstance(ident, str) and 0 < len(ident) <= 64 else {}

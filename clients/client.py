@@ -98,6 +98,7 @@ class MoveReply:
     duration: float
     goal: FloatArray
     start_source: str
+    adapter: str = ""  # the adapter that accepted the trajectory
 
 
 class ArmClient:
@@ -230,7 +231,8 @@ class ArmClient:
         """Plan from where the arm is and send it to the adapters. ``wait``: return when the
         arm has arrived (the service's state of it says at rest at the goal)."""
         r = self.call(f"{robot}/move", _motion(goal, path, speed, rate_hz, via))
-        reply = MoveReply(r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"])
+        reply = MoveReply(r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"],
+                          str(r.get("adapter", "")))
         if wait:
             self.wait_until_still(robot, reply.goal, timeout=wait_timeout or reply.duration + 5.0)
         return reply

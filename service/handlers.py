@@ -15,15 +15,18 @@ import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import numpy as np
+
 import planning
 import solvers
-from robots import BadRequest, PositionUnknown, Robot
+from planning import JointState
+from robots import ArmdError, BadRequest, PositionUnknown, Robot
 
 from .deadline import Deadline
 from .protocol import PROTOCOL_VERSION, Limits, NoAdapter, allowed, flag, number
 from .state import StateBook
 
-Publish = Callable[[Robot, dict[str, Any]], None]
+Publish = Callable[[Robot, dict[str, Any]], Any]  # (a trajectory's: the id of the adapter that accepted it)
 AdapterCount = Callable[[Robot], int]
 
 
@@ -107,10 +110,11 @@ class Handlers:
         if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
             msg["target"] = goal["target"]  # the Cartesian target asked for (viewers draw it)
         deadline.check()  # the last moment to give up: after this the arm moves
-        self.publish(arm, msg)
+        adapter = self.publish(arm, msg)  # (once an adapter has accepted it)
         self.book.commanded(arm.name, traj)
-        return {"id": msg["id"], "path": traj.path, "duration": traj.duration, "samples": len(traj.times),
-                "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(), "start_source": known.source}
+        return {"id": msg["id"], "adapter": adapter, "path": traj.path, "duration": traj.duration,
+                "samples": len(traj.times), "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(),
+                "start_source": known.source}
 
     def stop(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Never refused: not for lateness, not for a state outside the limits. The stop goes
@@ -120,7 +124,11 @@ class Handlers:
         ident = uuid.uuid4().hex
         self.publish_estop(arm, {"id": ident, "by": "service"})
         known = self.book.current(arm)
-        traj = planning.plan_stop(arm, known.state, clamp=True)
+        try:
+            traj = planning.plan_stop(arm, known.state, clamp=True)
+        except ArmdError:  # (an estimate only: the adapters brake from their own states)
+            traj = planning.plan_stop(arm, JointState.at_rest(np.clip(known.state.position, arm.limits.lower,
+                                                                      arm.limits.upper)), clamp=True)
         self.book.commanded(arm.name, traj)
         return {"id": ident, "duration": traj.duration, "adapters": self.adapters(arm),
                 "rest": traj.position[-1].tolist()}

@@ -114,6 +114,12 @@ class NoAdapter(ArmdError):
     code = "no_adapter"
 
 
+class Rejected(ArmdError):
+    """Every live adapter of the arm refused the trajectory (``reason``: the last one's word)."""
+
+    code = "rejected"
+
+
 class Internal(ArmdError):
     code = "internal"
 

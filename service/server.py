@@ -49,13 +49,43 @@ from robots import ArmdError, Robot, UnknownRobot
 
 from .deadline import Deadline, DeadlineExceeded
 from .handlers import Handlers
-from .protocol import VERBS, Internal, Limits, UnknownVerb, decode, encode, error_reply, request_deadline
+from .protocol import (
+    VERBS,
+    Internal,
+    Limits,
+    NoAdapter,
+    Rejected,
+    UnknownVerb,
+    decode,
+    encode,
+    error_reply,
+    request_deadline,
+)
 from .state import StateBook
 
 log = logging.getLogger("armd.service")
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
 JSON = zenoh.Encoding.APPLICATION_JSON
 Route = tuple[Robot | None, str]  # (arm, verb); (None, "robots") for the service-wide verb
+ACCEPT_TIMEOUT = 1.0  # [s] how long a move waits for an adapter to accept its trajectory
+POSITION_SLACK = 0.05  # [rad] a reported position may be this far outside the limits (quantisation, noise)
+SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
+JUMP_SLACK = 0.05  # [rad] what a report may move beyond what the velocity limits allow since the last one
+SETTLE = 0.1  # [s] the time a report may move over, beyond the time between reports (bunched deliveries)
+RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
+SAY_EVERY = 5.0  # [s] ignored states are logged at most this often, counted between
+UNPROVEN_MAX = 64  # early states kept for tokens not seen yet
+
+
+class _Acceptance:
+    """A published trajectory waiting for an adapter's word."""
+
+    def __init__(self) -> None:
+        self.done = threading.Event()
+        self.adapter: str | None = None  # who accepted it
+        self.by: str | None = None  # who last refused it, and why
+        self.reason = ""
+        self.rejections = 0
 
 
 class Service:
@@ -70,6 +100,11 @@ class Service:
         self.book = StateBook()
         self._adapters: dict[str, set[str]] = {name: set() for name in self.arms}
         self._lock = threading.Lock()
+        self._pending: dict[str, tuple[str, _Acceptance]] = {}  # trajectory id: (robot, its acceptance)
+        self._seqs: dict[tuple[str, str], int] = {}  # (robot, adapter): the last state's sequence number
+        self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
+        self._ignored: dict[str, int] = {}  # states ignored, by reason
+        self._said = 0.0  # when ignored states were last logged
         self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
                                  self._publish_gripper, self._publish_estop)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
@@ -101,6 +136,7 @@ class Service:
         self._entities: list[Any] = [
             session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
+            session.declare_subscriber(f"{self.prefix}/*/events", self._on_event),
             session.liveliness().declare_subscriber(f"{self.prefix}/*/adapter/*", self._on_adapter, history=True),
             session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
         ]
@@ -220,8 +256,54 @@ class Service:
 
     # -- adapters ----------------------------------------------------------------------------
 
-    def _publish(self, arm: Robot, message: dict[str, Any]) -> None:
-        self._publishers[arm.name].put(encode(message))
+    def _publish(self, arm: Robot, message: dict[str, Any]) -> str:
+        """Publish a trajectory and wait until a live adapter of ``arm`` accepts it: its id.
+        Refused by every adapter: :class:`Rejected` with the reason. No answer in
+        ``ACCEPT_TIMEOUT``: an estop (so that a late adapter does not move the arm after the
+        caller was told it would not), then :class:`NoAdapter`."""
+        ident = str(message["id"])
+        waiter = _Acceptance()
+        with self._lock:
+            self._pending[ident] = (arm.name, waiter)
+        try:
+            self._publishers[arm.name].put(encode(message))
+            if not waiter.done.wait(ACCEPT_TIMEOUT):
+                self._publish_estop(arm, {"id": uuid.uuid4().hex, "by": "service",
+                                          "reason": f"no adapter accepted trajectory {ident}"})
+                raise NoAdapter(f"no adapter of {arm.name} accepted the trajectory within {ACCEPT_TIMEOUT:.0f} s "
+                                "(an estop was sent, so that a late one does not move the arm)", robot=arm.name)
+        finally:
+            with self._lock:
+                self._pending.pop(ident, None)
+        if waiter.adapter is None:
+            raise Rejected(f"{arm.name}'s adapter refused the trajectory: {waiter.reason}", robot=arm.name,
+                           adapter=waiter.by, reason=waiter.reason)
+        return waiter.adapter
+
+    def _on_event(self, sample: zenoh.Sample) -> None:
+        """Adapters' events: an ``accepted`` or ``rejected`` of a trajectory a ``move`` waits for."""
+        try:
+            msg = orjson.loads(sample.payload.to_bytes())
+            event, ident, adapter = msg.get("event"), msg.get("id"), msg.get("adapter")
+        except (orjson.JSONDecodeError, AttributeError):
+            return
+        if event not in ("accepted", "rejected") or not isinstance(ident, str) or not isinstance(adapter, str):
+            return
+        robot = str(sample.key_expr).split("/")[-2]
+        with self._lock:
+            pending = self._pending.get(ident)
+            live = adapter in self._adapters.get(robot, ())
+            if pending is None or pending[0] != robot or not live:
+                return
+            waiter = pending[1]
+            if event == "accepted":
+                waiter.adapter = adapter
+                waiter.done.set()
+            else:
+                waiter.by, waiter.reason = adapter, str(msg.get("reason", "no reason given"))
+                waiter.rejections += 1
+                if waiter.rejections >= len(self._adapters.get(robot, ())):  # every live adapter said no
+                    waiter.done.set()
 
     def _publish_estop(self, arm: Robot, message: dict[str, Any]) -> None:
         self.session.put(f"{self.prefix}/{arm.name}/estop", encode(message), encoding=JSON,
@@ -244,28 +326,84 @@ class Service:
             alive = self._adapters.setdefault(robot, set())
             if sample.kind == zenoh.SampleKind.PUT:
                 alive.add(ident)
+                early = self._unproven.pop((robot, ident), None)
             else:
                 alive.discard(ident)
+                early = None
+        if sample.kind != zenoh.SampleKind.PUT:
+            self.book.forget(robot, ident)
+            with self._lock:
+                self._seqs.pop((robot, ident), None)
+        elif early is not None:  # its state came before its token: trusted now, if still fresh
+            self._on_state(early)
         log.info("adapter %s of %s %s", ident, robot, "up" if sample.kind == zenoh.SampleKind.PUT else "gone")
 
     def _on_state(self, sample: zenoh.Sample) -> None:
+        """An adapter's state, trusted only from a live adapter (its liveliness token), in order
+        (its sequence number), and plausible: within the limits (with a slack), its speed within
+        them, and continuous with that adapter's last report. Anything else is ignored, counted,
+        and logged at most every ``SAY_EVERY`` seconds."""
         robot = str(sample.key_expr).split("/")[-2]
         arm = self.arms.get(robot)
         if arm is None:
             return
         try:
             msg = orjson.loads(sample.payload.to_bytes())
+            adapter, seq = msg["adapter"], msg["seq"]
+            if not isinstance(adapter, str) or not isinstance(seq, int) or isinstance(seq, bool):
+                raise ValueError("no adapter id or sequence number")
             q = np.asarray(msg["position"], dtype=float)
             v = np.asarray(msg.get("velocity", np.zeros(arm.nq)), dtype=float)
             a = np.asarray(msg.get("acceleration", np.zeros(arm.nq)), dtype=float)
             if q.shape != (arm.nq,) or v.shape != (arm.nq,) or a.shape != (arm.nq,) \
                     or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
                 raise ValueError("bad shape or not finite")
-        except (ValueError, KeyError, TypeError) as e:
-            log.warning("ignoring a malformed state of %s: %s", robot, e)
+        except (ValueError, KeyError, TypeError, AttributeError, orjson.JSONDecodeError):
+            self._ignore(robot, "malformed")
             return
+        with self._lock:
+            if adapter not in self._adapters.get(robot, ()):
+                if len(self._unproven) < UNPROVEN_MAX or (robot, adapter) in self._unproven:
+                    self._unproven[(robot, adapter)] = sample
+                known = False
+            else:
+                known = True
+                last_seq = self._seqs.get((robot, adapter))
+        if not known:
+            self._ignore(robot, "no live adapter of that id")
+            return
+        if last_seq is not None and seq <= last_seq:
+            self._ignore(robot, "out of order or replayed")
+            return
+        lim = arm.limits
+        if not lim.contains(q, tol=POSITION_SLACK):
+            self._ignore(robot, "outside the limits")
+            return
+        if np.any(np.abs(v) > lim.velocity * SPEED_SLACK):
+            self._ignore(robot, "faster than the limits")
+            return
+        last = self.book.last(robot, adapter)
+        now = self.book.now()
+        if last is not None:
+            dt = now - last[0]
+            if np.any(np.abs(q - last[1].position) > lim.velocity * (dt + SETTLE) + JUMP_SLACK) and dt < RESET_AFTER:
+                self._ignore(robot, "not continuous with its last report")
+                return
+        with self._lock:
+            self._seqs[(robot, adapter)] = seq
         homed = msg.get("homed", True) is not False
-        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)), homed)
+        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)), homed, adapter=adapter)
+
+    def _ignore(self, robot: str, why: str) -> None:
+        with self._lock:
+            self._ignored[why] = self._ignored.get(why, 0) + 1
+            now = time.monotonic()
+            if now - self._said < SAY_EVERY:
+                return
+            self._said = now
+            counts = ", ".join(f"{n} {reason}" for reason, n in sorted(self._ignored.items()))
+        log.warning("ignoring states on %s/%s/state that no live adapter vouches for (so far: %s)",
+                    self.prefix, robot, counts)
 
     # -- life ------------------------------------------------------------------------------
 
@@ -274,7 +412,7 @@ class Service:
         (answered ``deadline``), and ``in_flight``: handed to a pool and not answered yet."""
         with self._lock:
             return {"served": self._served, "errors": self._errors, "late": self._late,
-                    "in_flight": self._in_flight}
+                    "in_flight": self._in_flight, "states_ignored": sum(self._ignored.values())}
 
     def close(self) -> None:
         for entity in self._entities:

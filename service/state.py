@@ -1,5 +1,7 @@
-"""What the service knows of each arm's current state: what adapters report, else what it
-last commanded (the running trajectory, evaluated now), else the neutral pose."""
+"""What the service knows of each arm's current state: what its live adapters report (the
+freshest of them), else what it last commanded (the running trajectory, evaluated now), else
+the neutral pose. Which reports are trusted is the service's decision (service.server); the
+book keeps one state per adapter and forgets an adapter when it goes."""
 
 from __future__ import annotations
 
@@ -28,16 +30,27 @@ class StateBook:
 
     def __init__(self, clock: object = time.monotonic) -> None:
         self._lock = threading.Lock()
-        self._reported: dict[str, tuple[float, JointState, bool, bool]] = {}
+        self._reported: dict[str, dict[str, tuple[float, JointState, bool, bool]]] = {}  # robot: adapter: report
         self._commanded: dict[str, tuple[float, Trajectory]] = {}
         self._clock = clock
 
     def now(self) -> float:
         return float(self._clock())  # type: ignore[operator]
 
-    def report(self, robot: str, state: JointState, moving: bool, homed: bool = True) -> None:
+    def report(self, robot: str, state: JointState, moving: bool, homed: bool = True, adapter: str = "") -> None:
         with self._lock:
-            self._reported[robot] = (self.now(), state, moving, homed)
+            self._reported.setdefault(robot, {})[adapter] = (self.now(), state, moving, homed)
+
+    def forget(self, robot: str, adapter: str) -> None:
+        """An adapter gone: its last report no longer says where the arm is."""
+        with self._lock:
+            self._reported.get(robot, {}).pop(adapter, None)
+
+    def last(self, robot: str, adapter: str) -> tuple[float, JointState] | None:
+        """When ``adapter``'s last report of ``robot`` came, and what it said."""
+        with self._lock:
+            rep = self._reported.get(robot, {}).get(adapter)
+        return None if rep is None else (rep[0], rep[1])
 
     def commanded(self, robot: str, traj: Trajectory) -> None:
         with self._lock:
@@ -46,7 +59,8 @@ class StateBook:
     def current(self, robot: Robot) -> Known:
         now = self.now()
         with self._lock:
-            rep = self._reported.get(robot.name)
+            reports = self._reported.get(robot.name, {})
+            rep = max(reports.values(), key=lambda r: r[0]) if reports else None
             cmd = self._commanded.get(robot.name)
         if rep is not None and now - rep[0] <= STALE_AFTER:
             return Known(rep[1], "adapter", rep[2], rep[3])

@@ -246,7 +246,7 @@ def test_a_move_keeps_every_limit_at_the_board(client: ArmClient, service: objec
     limits, and arrives: at 9600 baud the stream is thinned to what the link carries, and a
     board that answers QP in 150 ms neither slows the stream nor faults."""
     arm = robots.load("insomniac")
-    with SSC32Emulator(baud=baud, query_delay=query_delay) as emu:
+    with EmulatorProcess(SSC32Emulator, baud=baud, query_delay=query_delay) as emu:  # (its own CPU, as a board)
         adapter = SSC32Adapter(adapter_session, arm, emu.port, baud=baud)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
@@ -323,7 +323,7 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmC
     hand and holds; when the adapter runs again it ramps up from rest within the limits and
     finishes the trajectory later: never faster than the limits."""
     arm = robots.load("insomniac")
-    with SSC32Emulator() as emu:
+    with EmulatorProcess(SSC32Emulator) as emu:  # (a board has its own CPU: not this busy interpreter's)
         env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
         proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
                                  emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
@@ -416,7 +416,9 @@ def test_a_link_too_slow_for_the_trajectory_is_refused_before_any_pulse(client: 
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             events, sub = collect(client, "armd/insomniac/events")
             sent = len(emu.history)
-            client.move("insomniac", GOAL)
+            with pytest.raises(ServiceError) as e:  # the move's reply says so: the adapter refused it
+                client.move("insomniac", GOAL)
+            assert e.value.code == "rejected" and "1200 baud" in e.value.message
             wait_for(lambda: any(e["event"] == "rejected" for e in events), timeout=5, what="a rejection")
             time.sleep(0.2)
             assert len(emu.history) == sent

@@ -1,0 +1,126 @@
+"""Whom the service believes: states only from live adapters, in order and plausible; a move
+succeeds only once an adapter accepted its trajectory. Through real Zenoh sessions on a router."""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+import zenoh
+
+import robots
+from clients import ArmClient, ServiceError
+from clients.sim import SimAdapter
+from service.server import ACCEPT_TIMEOUT
+from service.zconfig import network_config
+from tests.conftest import collect, wait_for
+
+ARM = "desk4"
+
+
+@pytest.fixture
+def forger(router: str) -> Iterator[zenoh.Session]:
+    """Someone else on the network, with no adapter behind them."""
+    session = zenoh.open(network_config(connect=[router]))
+    yield session
+    session.close()
+
+
+def _state(q: list[float], adapter: str, seq: int, **extra: object) -> bytes:
+    n = len(q)
+    return json.dumps({"robot": ARM, "adapter": adapter, "seq": seq, "position": q, "velocity": [0.0] * n,
+                       "acceleration": [0.0] * n, "moving": False, "homed": True, **extra}).encode()
+
+
+def _ignored(service: object) -> int:
+    return int(service.stats()["states_ignored"])  # type: ignore[attr-defined]
+
+
+def test_a_state_from_no_live_adapter_is_ignored_and_counted(client: ArmClient, service: object,
+                                                             forger: zenoh.Session) -> None:
+    arm = robots.load(ARM)
+    far = (np.array(arm.neutral) + 0.5).tolist()
+    before = _ignored(service)
+    for seq in range(50):  # faster than any adapter
+        forger.put(f"armd/{ARM}/state", _state(far, "forged00001", seq))
+        time.sleep(0.002)
+    wait_for(lambda: _ignored(service) >= before + 50, what="the forged states counted")
+    s = client.state(ARM)
+    assert s["source"] != "adapter" and not np.allclose(s["position"], far)
+
+
+def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(client: ArmClient, service: object,
+                                                                       adapter_session: zenoh.Session,
+                                                                       forger: zenoh.Session) -> None:
+    arm = robots.load(ARM)
+    start = (np.array(arm.neutral) + 0.1).tolist()
+    adapter = SimAdapter(adapter_session, arm, start=np.array(start))
+    try:
+        wait_for(lambda: client.state(ARM)["source"] == "adapter"
+                 and np.allclose(client.state(ARM)["position"], start, atol=1e-9), what="the adapter's state")
+        before = _ignored(service)
+        far = (np.array(arm.neutral) - 0.6).tolist()
+        outside = (np.array(arm.limits.upper) + 0.5).tolist()
+        # its id (it is in every state it publishes), but a jump, a replay, a pose outside the
+        # limits, a speed over them, a malformed number: none is believed
+        forger.put(f"armd/{ARM}/state", _state(far, adapter.id, 10**9))
+        forger.put(f"armd/{ARM}/state", _state(start, adapter.id, 0))
+        forger.put(f"armd/{ARM}/state", _state(outside, adapter.id, 10**9 + 1))
+        forger.put(f"armd/{ARM}/state", _state(start, adapter.id, 10**9 + 2,
+                                               velocity=(arm.limits.velocity * 10).tolist()))
+        forger.put(f"armd/{ARM}/state", b'{"adapter": "x", "seq": 1, "position": [1e999]}')
+        wait_for(lambda: _ignored(service) >= before + 5, what="the forgeries ignored")
+        for _ in range(10):
+            assert np.allclose(client.state(ARM)["position"], start, atol=1e-9)
+            time.sleep(0.02)
+        # and a move plans from where the adapter says the arm is
+        r = client.call(f"{ARM}/move", {"goal": list(arm.neutral)})
+        assert np.allclose(r["start"]["position"], start, atol=1e-6) and r["adapter"] == adapter.id
+    finally:
+        adapter.close()
+
+
+def test_a_gone_adapters_state_is_forgotten(client: ArmClient, service: object,
+                                            adapter_session: zenoh.Session) -> None:
+    arm = robots.load(ARM)
+    adapter = SimAdapter(adapter_session, arm)
+    wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
+    adapter.close()
+    wait_for(lambda: service._adapter_count(arm) == 0, what="the token gone")  # type: ignore[attr-defined]
+    assert client.state(ARM)["source"] != "adapter"
+
+
+def test_a_token_alone_does_not_make_a_move_succeed(client: ArmClient, service: object,
+                                                    forger: zenoh.Session) -> None:
+    """A liveliness token with nothing behind it: the move waits for an acceptance that never
+    comes, answers no_adapter, and sends an estop so that a late adapter does not move the arm."""
+    arm = robots.load(ARM)
+    token = forger.liveliness().declare_token(f"armd/{ARM}/adapter/faketoken01")
+    estops, sub = collect(client, f"armd/{ARM}/estop")
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the fake token")  # type: ignore[attr-defined]
+        asked = time.monotonic()
+        with pytest.raises(ServiceError) as e:
+            client.move(ARM, (np.array(arm.neutral) + 0.2).tolist())
+        assert e.value.code == "no_adapter" and "accepted" in e.value.message
+        assert time.monotonic() - asked >= ACCEPT_TIMEOUT * 0.9
+        wait_for(lambda: len(estops) >= 1, what="the estop")
+        assert "no adapter accepted" in str(estops[-1].get("reason"))
+    finally:
+        sub.undeclare()  # type: ignore[attr-defined]
+        token.undeclare()
+
+
+def test_a_move_names_the_adapter_that_accepted_it(client: ArmClient, service: object,
+                                                   adapter_session: zenoh.Session) -> None:
+    arm = robots.load(ARM)
+    adapter = SimAdapter(adapter_session, arm)
+    try:
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
+        reply = client.move(ARM, (np.array(arm.neutral) + 0.1).tolist())
+        assert reply.adapter == adapter.id
+    finally:
+        adapter.close()
