@@ -51,10 +51,16 @@ def network_config(*, listen: list[str] | None = None, connect: list[str] | None
                    config_file: str | None = None, mode: str | None = None) -> zenoh.Config:
     """The configuration of a long-running armd process (service, adapter, router).
 
-    - ``config_file``: a Zenoh JSON5 configuration, used as it is (``listen``/``connect`` add to it).
+    - ``config_file``: a Zenoh JSON5 configuration, used as it is: its endpoints, TLS,
+      credentials, access control and the rest. ``listen``/``connect``/``mode``, where given,
+      replace the file's values for those keys; where not given, the file's stand.
     - ``connect`` given: join an existing network as a client of the router(s) there (or
-      ``mode``): a router routes everything between its clients, liveliness included.
+      ``mode``): a router routes everything between its clients, liveliness included. A
+      ``mode="router"`` listens on ``listen`` (default tcp/127.0.0.1:7447) as well.
     - otherwise: an embedded router listening on ``listen`` (default tcp/127.0.0.1:7447).
+
+    Never Zenoh's own default listen endpoint for a router (``tcp/[::]:7447``: every interface)
+    unless a file asks for it.
     """
     if config_file:
         if not Path(config_file).is_file():
@@ -75,8 +81,8 @@ def network_config(*, listen: list[str] | None = None, connect: list[str] | None
         conf.insert_json5("mode", json.dumps(mode or "client"))
         conf.insert_json5("connect/endpoints", json.dumps(connect))
         _reconnect_fast(conf)
-        if listen:
-            conf.insert_json5("listen/endpoints", json.dumps(listen))
+        if listen or mode == "router":
+            conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
     else:
         conf.insert_json5("mode", json.dumps(mode or "router"))
         conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
@@ -92,3 +98,20 @@ def client_config(connect: list[str] | None = None, config_file: str | None = No
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps(connect or [DEFAULT_ENDPOINT]))
     return _quiet(_reconnect_fast(conf))
+
+
+# -- what a configuration listens on -----------------------------------------------------------
+
+
+def _mode(conf: zenoh.Config) -> str:
+    return str(json.loads(conf.get_json("mode")) or "peer")  # Zenoh's default mode is peer
+
+
+def endpoints(conf: zenoh.Config, which: str) -> list[str]:
+    """The ``"listen"`` or ``"connect"`` endpoints a session opened with ``conf`` uses: the
+    configured list, or Zenoh's default for the configuration's mode (Zenoh also accepts one
+    list per mode, ``{router: [...], peer: [...]}``)."""
+    value = json.loads(conf.get_json(f"{which}/endpoints"))
+    if isinstance(value, dict):
+        value = value.get(_mode(conf), [])
+    return [str(e) for e in value or []]

@@ -1,16 +1,19 @@
 """armd's Zenoh configurations: shared memory is off, so a router keeps no memory of the
-clients on its host that sent it large payloads."""
+clients on its host that sent it large payloads; a configuration file's endpoints are the ones
+used, flags replace them, and with neither a router listens on loopback."""
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
 
-from service.zconfig import network_config
+from service.zconfig import DEFAULT_ENDPOINT, endpoints, network_config
 from tests.conftest import free_port
 
 PLAIN_CLIENT = """
@@ -46,3 +49,29 @@ def test_a_router_maps_no_client_memory(shm: bool) -> None:
     finally:
         router.close()
     assert bool(new) == shm, new
+
+
+# -- which endpoints: the file's, the flags' where given, else tcp/127.0.0.1:7447 ------------------
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "security"
+
+
+def test_a_file_is_used_as_it_is_and_flags_replace_its_endpoints() -> None:
+    tls_router = str(DOCS / "tls-router.json5")
+    conf = network_config(config_file=tls_router, mode="router")  # `armd router --config tls-router.json5`
+    assert endpoints(conf, "listen") == ["tls/127.0.0.1:7448", "tcp/127.0.0.1:7447"]
+    assert json.loads(conf.get_json("transport/link/tls/listen_certificate")) == "certs/router.pem"
+    conf = network_config(config_file=tls_router, listen=["tcp/127.0.0.1:9001"], connect=["tcp/127.0.0.1:9002"],
+                          mode="router")
+    assert endpoints(conf, "listen") == ["tcp/127.0.0.1:9001"]
+    assert endpoints(conf, "connect") == ["tcp/127.0.0.1:9002"]
+    assert json.loads(conf.get_json("transport/link/tls/listen_certificate")) == "certs/router.pem"  # kept
+    conf = network_config(config_file=str(DOCS / "tls-client.json5"))  # `armd serve/adapter --config ...`
+    assert endpoints(conf, "connect") == ["tls/127.0.0.1:7448"] and endpoints(conf, "listen") == []
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"mode": "router"}, {"connect": ["tcp/127.0.0.1:9002"], "mode": "router"}],
+                         ids=["serve", "router", "router-connect"])
+def test_without_a_file_a_router_listens_on_loopback(kwargs: dict[str, Any]) -> None:
+    """Never Zenoh's default for a router, tcp/[::]:7447 (every interface)."""
+    assert endpoints(network_config(**kwargs), "listen") == [DEFAULT_ENDPOINT]
