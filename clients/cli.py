@@ -114,10 +114,16 @@ def _wait_for_signal() -> None:
 
 
 def _open(conf: Any) -> Any:
-    """A Zenoh session on ``conf``; an endpoint Zenoh cannot open is an error naming it, not a
-    traceback."""
+    """A Zenoh session on ``conf``, after one warning line on stderr where it listens on the
+    network with no authentication (:func:`service.zconfig.exposure_warning`); an endpoint
+    Zenoh cannot open is an error naming it, not a traceback."""
     import zenoh
 
+    from service.zconfig import exposure_warning
+
+    warning = exposure_warning(conf)
+    if warning:
+        print(f"armd: warning: {warning}", file=sys.stderr, flush=True)
     zenoh.init_log_from_env_or("error")
     try:
         return zenoh.open(conf)

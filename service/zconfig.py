@@ -6,6 +6,7 @@ endpoints are explicit), and so is gossip. So is shared memory (see :func:`_quie
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import socket
 from pathlib import Path
@@ -100,7 +101,10 @@ def client_config(connect: list[str] | None = None, config_file: str | None = No
     return _quiet(_reconnect_fast(conf))
 
 
-# -- what a configuration listens on -----------------------------------------------------------
+# -- what a configuration listens on, and who may open a session there -------------------------
+
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")  # the protocols whose endpoints are host:port
+_TLS_LINKS = ("tls", "quic")  # the ones that can ask a client for its certificate (mutual TLS)
 
 
 def _mode(conf: zenoh.Config) -> str:
@@ -115,3 +119,42 @@ def endpoints(conf: zenoh.Config, which: str) -> list[str]:
     if isinstance(value, dict):
         value = value.get(_mode(conf), [])
     return [str(e) for e in value or []]
+
+
+def is_loopback(endpoint: str) -> bool | None:
+    """Whether ``endpoint`` (``proto/host:port[?metadata][#config]``) is reachable from this
+    machine only: an address in 127.0.0.0/8, ``::1`` or ``localhost``. None for links that have
+    no host (a Unix socket, a serial line)."""
+    proto, _, address = endpoint.partition("/")
+    if proto not in _IP_LINKS:
+        return None
+    host = address.split("?", 1)[0].split("#", 1)[0].rpartition(":")[0].strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
+
+
+def unauthenticated_endpoints(conf: zenoh.Config) -> list[str]:
+    """The listen endpoints of ``conf`` that other machines can reach and where Zenoh opens a
+    session for anyone: not loopback, and neither user/password checked
+    (``transport.auth.usrpwd.dictionary_file``: a ``user``/``password`` alone are the
+    credentials this process presents, they check nobody) nor, on a TLS or QUIC endpoint,
+    client certificates (``transport.link.tls.enable_mtls``). See docs/security.md."""
+    if json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")):
+        return []
+    mtls = json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
+    return [e for e in endpoints(conf, "listen")
+            if is_loopback(e) is False and not (mtls and e.partition("/")[0] in _TLS_LINKS)]
+
+
+def exposure_warning(conf: zenoh.Config) -> str | None:
+    """One line to warn with where :func:`unauthenticated_endpoints` finds any, else None."""
+    open_ = unauthenticated_endpoints(conf)
+    if not open_:
+        return None
+    return (f"listening on {', '.join(open_)} with no authentication: anyone on that network can query the "
+            "service, publish trajectories and move the arms; see docs/security.md (user/password, TLS, "
+            "access control) or listen on 127.0.0.1")

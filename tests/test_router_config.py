@@ -1,6 +1,6 @@
 """`armd router --config` and `armd serve --config` run as a user runs them (separate processes):
 the file's endpoints are the ones opened (the TLS router of docs/security opens its TLS port),
-and ``--listen`` replaces them."""
+``--listen`` replaces them, and listening on the network with nobody logging in is warned of."""
 
 from __future__ import annotations
 
@@ -120,12 +120,35 @@ def test_listen_replaces_the_files_endpoints(tmp_path: Path, certs: Path) -> Non
             zenoh.open(client_config([f"tcp/127.0.0.1:{tcp_port}"])).close()
 
 
-def test_serve_listens_where_its_file_says(tmp_path: Path) -> None:
+def test_serve_listens_where_its_file_says_and_does_not_warn_on_loopback(tmp_path: Path) -> None:
     port = free_port()
     conf = tmp_path / "serve.json5"
     conf.write_text(f'{{ mode: "router", listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }},'
                     ' scouting: { multicast: { enabled: false } } }')
-    with running("serve", "--config", str(conf), ready="armd serving") as (_, line):
+    with running("serve", "--config", str(conf), ready="armd serving") as (proc, line):
         assert f"on tcp/127.0.0.1:{port}" in line, line
         with ArmClient(f"tcp/127.0.0.1:{port}", timeout=10.0) as c:
             assert "gupta3" in [r["name"] for r in c.robots()]
+    assert "warning" not in proc.stderr.read()
+
+
+@pytest.mark.parametrize("command", ["serve", "router"])
+def test_listening_on_the_network_without_a_login_is_warned_of(command: str) -> None:
+    """One warning line naming docs/security.md before the session opens. The address is
+    TEST-NET-1 (192.0.2.1, on no machine), so nothing opens to the network: the process then
+    says in one line that Zenoh cannot listen there, and exits 2."""
+    endpoint = f"tcp/192.0.2.1:{free_port()}"
+    out = subprocess.run([sys.executable, "-m", "clients.cli", command, "--listen", endpoint], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    warnings = [line for line in out.stderr.splitlines() if line.startswith("armd: warning:")]
+    assert len(warnings) == 1, out.stderr
+    assert endpoint in warnings[0] and "docs/security.md" in warnings[0]
+    assert out.returncode == 2 and "armd: error: Zenoh cannot open the session" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_the_loopback_router_is_not_warned_of() -> None:
+    port = free_port()
+    with running("router", "--listen", f"tcp/127.0.0.1:{port}", ready="zenoh router") as (proc, line):
+        assert line.rstrip().endswith(f"listening on tcp/127.0.0.1:{port}"), line
+    assert "warning" not in proc.stderr.read()
