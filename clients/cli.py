@@ -93,10 +93,12 @@ def cmd_plot(args: argparse.Namespace) -> int:
 
 def _network_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on (default tcp/127.0.0.1:7447 for the embedded router)")
+                   help="endpoint to listen on (default: the --config file's, else tcp/127.0.0.1:7447 for the "
+                   "embedded router)")
     p.add_argument("--connect", action="append", metavar="ENDPOINT",
                    help="join an existing Zenoh network through this endpoint instead of embedding a router")
-    p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
+    p.add_argument("--config", help="a Zenoh configuration file (JSON5), used as it is: its endpoints, TLS, "
+                   "credentials; --listen/--connect, where given, replace its endpoints")
     p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
 
 
@@ -111,10 +113,33 @@ def _wait_for_signal() -> None:
         stop.wait(0.5)
 
 
+def _open(conf: Any) -> Any:
+    """A Zenoh session on ``conf``, after one warning line on stderr where it listens on the
+    network with no authentication (:func:`service.zconfig.exposure_warning`); an endpoint
+    Zenoh cannot open is an error naming it, not a traceback."""
+    import zenoh
+
+    from service.zconfig import exposure_warning
+
+    warning = exposure_warning(conf)
+    if warning:
+        print(f"armd: warning: {warning}", file=sys.stderr, flush=True)
+    zenoh.init_log_from_env_or("error")
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        raise robots.BadRequest(f"Zenoh cannot open the session: {str(e).split(' at /')[0]}") from None
+
+
+def _where(conf: Any) -> str:
+    """Where a session on ``conf`` is: its connect endpoints, else its listen endpoints."""
+    from service.zconfig import endpoints
+
+    return ", ".join(endpoints(conf, "connect") or endpoints(conf, "listen")) or "no endpoint"
+
+
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
-
-    import zenoh
 
     from service.protocol import Limits
     from service.server import Service
@@ -128,8 +153,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise robots.BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
     arms = _all_robots(args.robots_dir)
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config)
-    zenoh.init_log_from_env_or("error")
-    session = zenoh.open(conf)
+    stop = _signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
+    session = _open(conf)
     try:
         service = Service(session, arms, prefix=args.prefix, limits=limits, workers=args.workers)
     except BaseException:
@@ -140,11 +165,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
         from clients.sim import SimAdapter
 
         sims = [SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale) for arm in arms.values()]
-    where = ", ".join(args.connect) if args.connect else ", ".join(args.listen or ["tcp/127.0.0.1:7447"])
     extra = f", with simulated arms (x{args.time_scale:g} real time)" if args.sim else ""
-    print(f"armd serving {', '.join(arms)} on {where} (prefix {args.prefix}){extra}; Ctrl-C to stop", flush=True)
+    print(f"armd serving {', '.join(arms)} on {_where(conf)} (prefix {args.prefix}){extra}; Ctrl-C to stop", flush=True)
     try:
-        _wait_for_signal()
+        while not stop.is_set():
+            stop.wait(0.5)
     finally:
         for sim in sims:
             sim.close()
@@ -252,17 +277,19 @@ def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: o
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    import zenoh
+    """A Zenoh router on the ``--config`` file's endpoints (TLS and all), ``--listen`` and
+    ``--connect`` replacing them where given; with neither, on tcp/127.0.0.1:7447."""
+    from service.zconfig import endpoints, network_config
 
-    from service.zconfig import network_config
-
-    zenoh.init_log_from_env_or("error")
-    session = zenoh.open(network_config(listen=args.listen or ["tcp/127.0.0.1:7447"], connect=args.connect,
-                                        config_file=args.config, mode="router"))
-    print(f"zenoh router {session.zid()} listening on {', '.join(args.listen or ['tcp/127.0.0.1:7447'])}",
-          flush=True)
+    conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config, mode="router")
+    stop = _signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
+    session = _open(conf)
+    listening = ", ".join(endpoints(conf, "listen")) or "no endpoint"
+    joined = f", connected to {', '.join(endpoints(conf, 'connect'))}" if endpoints(conf, "connect") else ""
+    print(f"zenoh router {session.zid()} listening on {listening}{joined}", flush=True)
     try:
-        _wait_for_signal()
+        while not stop.is_set():
+            stop.wait(0.5)
     finally:
         session.close()
     return 0

@@ -6,6 +6,7 @@ endpoints are explicit), and so is gossip. So is shared memory (see :func:`_quie
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import socket
 from pathlib import Path
@@ -51,10 +52,16 @@ def network_config(*, listen: list[str] | None = None, connect: list[str] | None
                    config_file: str | None = None, mode: str | None = None) -> zenoh.Config:
     """The configuration of a long-running armd process (service, adapter, router).
 
-    - ``config_file``: a Zenoh JSON5 configuration, used as it is (``listen``/``connect`` add to it).
+    - ``config_file``: a Zenoh JSON5 configuration, used as it is: its endpoints, TLS,
+      credentials, access control and the rest. ``listen``/``connect``/``mode``, where given,
+      replace the file's values for those keys; where not given, the file's stand.
     - ``connect`` given: join an existing network as a client of the router(s) there (or
-      ``mode``): a router routes everything between its clients, liveliness included.
+      ``mode``): a router routes everything between its clients, liveliness included. A
+      ``mode="router"`` listens on ``listen`` (default tcp/127.0.0.1:7447) as well.
     - otherwise: an embedded router listening on ``listen`` (default tcp/127.0.0.1:7447).
+
+    Never Zenoh's own default listen endpoint for a router (``tcp/[::]:7447``: every interface)
+    unless a file asks for it.
     """
     if config_file:
         if not Path(config_file).is_file():
@@ -75,8 +82,8 @@ def network_config(*, listen: list[str] | None = None, connect: list[str] | None
         conf.insert_json5("mode", json.dumps(mode or "client"))
         conf.insert_json5("connect/endpoints", json.dumps(connect))
         _reconnect_fast(conf)
-        if listen:
-            conf.insert_json5("listen/endpoints", json.dumps(listen))
+        if listen or mode == "router":
+            conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
     else:
         conf.insert_json5("mode", json.dumps(mode or "router"))
         conf.insert_json5("listen/endpoints", json.dumps(listen or [DEFAULT_ENDPOINT]))
@@ -92,3 +99,62 @@ def client_config(connect: list[str] | None = None, config_file: str | None = No
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps(connect or [DEFAULT_ENDPOINT]))
     return _quiet(_reconnect_fast(conf))
+
+
+# -- what a configuration listens on, and who may open a session there -------------------------
+
+_IP_LINKS = ("tcp", "udp", "tls", "quic", "ws")  # the protocols whose endpoints are host:port
+_TLS_LINKS = ("tls", "quic")  # the ones that can ask a client for its certificate (mutual TLS)
+
+
+def _mode(conf: zenoh.Config) -> str:
+    return str(json.loads(conf.get_json("mode")) or "peer")  # Zenoh's default mode is peer
+
+
+def endpoints(conf: zenoh.Config, which: str) -> list[str]:
+    """The ``"listen"`` or ``"connect"`` endpoints a session opened with ``conf`` uses: the
+    configured list, or Zenoh's default for the configuration's mode (Zenoh also accepts one
+    list per mode, ``{router: [...], peer: [...]}``)."""
+    value = json.loads(conf.get_json(f"{which}/endpoints"))
+    if isinstance(value, dict):
+        value = value.get(_mode(conf), [])
+    return [str(e) for e in value or []]
+
+
+def is_loopback(endpoint: str) -> bool | None:
+    """Whether ``endpoint`` (``proto/host:port[?metadata][#config]``) is reachable from this
+    machine only: an address in 127.0.0.0/8, ``::1`` or ``localhost``. None for links that have
+    no host (a Unix socket, a serial line)."""
+    proto, _, address = endpoint.partition("/")
+    if proto not in _IP_LINKS:
+        return None
+    host = address.split("?", 1)[0].split("#", 1)[0].rpartition(":")[0].strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it may resolve to anything
+        return False
+
+
+def unauthenticated_endpoints(conf: zenoh.Config) -> list[str]:
+    """The listen endpoints of ``conf`` that other machines can reach and where Zenoh opens a
+    session for anyone: not loopback, and neither user/password checked
+    (``transport.auth.usrpwd.dictionary_file``: a ``user``/``password`` alone are the
+    credentials this process presents, they check nobody) nor, on a TLS or QUIC endpoint,
+    client certificates (``transport.link.tls.enable_mtls``). See docs/security.md."""
+    if json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")):
+        return []
+    mtls = json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
+    return [e for e in endpoints(conf, "listen")
+            if is_loopback(e) is False and not (mtls and e.partition("/")[0] in _TLS_LINKS)]
+
+
+def exposure_warning(conf: zenoh.Config) -> str | None:
+    """One line to warn with where :func:`unauthenticated_endpoints` finds any, else None."""
+    open_ = unauthenticated_endpoints(conf)
+    if not open_:
+        return None
+    return (f"listening on {', '.join(open_)} with no authentication: anyone on that network can query the "
+            "service, publish trajectories and move the arms; see docs/security.md (user/password, TLS, "
+            "access control) or listen on 127.0.0.1")
