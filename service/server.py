@@ -58,7 +58,6 @@ from .protocol import (
     UnknownVerb,
     decode,
     encode,
-    error_reply,
     request_deadline,
 )
 from .state import StateBook
@@ -181,15 +180,17 @@ class Service:
             with query:  # finalises the query when done: one reply, then the end
                 try:
                     reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline), route)
+                    reply["service"] = self.id  # (which replica answered: for the operator, and the logs)
                     # (a reply travels with its query's congestion control: clients ask with BLOCK)
                     query.reply(key_expr, encode(reply), encoding=JSON)
                     outcome = "ok"
                 except ArmdError as e:
-                    query.reply_err(error_reply(e), encoding=JSON)
+                    query.reply_err(encode({**e.to_dict(), "service": self.id}), encoding=JSON)
                     outcome = "late" if isinstance(e, DeadlineExceeded) else "error"
                 except Exception as e:  # a bug: logged with its traceback, answered, never fatal
                     log.exception("internal error serving %s", key)
-                    query.reply_err(error_reply(Internal(f"internal error: {type(e).__name__}: {e}")), encoding=JSON)
+                    err = Internal(f"internal error: {type(e).__name__}: {e}")
+                    query.reply_err(encode({**err.to_dict(), "service": self.id}), encoding=JSON)
         except Exception:  # the query went away (client gone, session closing)
             log.debug("could not reply to %s", key, exc_info=True)
             outcome = "lost"

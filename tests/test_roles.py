@@ -1,0 +1,158 @@
+"""docs/security/router.json5's roles, each its own user, through a real router with the ACL:
+what each may do works, and each thing it may not do is denied (the router drops it: nothing
+reaches anyone). Every row of docs/security.md's table of roles is a test here."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from service.zconfig import network_config
+from tests.test_security import secured  # noqa: F401 (the fixture: a router with the ACL, and each role's config)
+
+SETTLE = 0.4  # [s] for a declaration to reach the router and the other sessions
+WAIT = 0.6  # [s] how long a delivery is waited for
+
+
+@pytest.fixture
+def roles(secured: dict[str, Path]) -> Iterator[Callable[[str], zenoh.Session]]:  # noqa: F811
+    """A session per role on demand (several of one role: call it again), closed at the end."""
+    opened: list[zenoh.Session] = []
+
+    def open_as(role: str) -> zenoh.Session:
+        session = zenoh.open(network_config(config_file=str(secured[role])))
+        opened.append(session)
+        return session
+
+    yield open_as
+    for s in opened:
+        s.close()
+
+
+def delivered(publisher: zenoh.Session, key: str, observer: zenoh.Session) -> bool:
+    """Whether a put of ``publisher`` on ``key`` reaches a subscriber of ``observer``."""
+    got = threading.Event()
+    sub = observer.declare_subscriber(key, lambda s: got.set())
+    time.sleep(SETTLE)
+    publisher.put(key, b'{"id": "probe"}')
+    seen = got.wait(WAIT)
+    sub.undeclare()
+    return seen
+
+
+def answered(querier: zenoh.Session, key: str, answerer: zenoh.Session) -> bool:
+    """Whether a query of ``querier`` on ``key`` gets a reply from a queryable of ``answerer``."""
+    q = answerer.declare_queryable("armd/**", lambda query: query.reply(query.key_expr, b'{"spoof": true}'))
+    time.sleep(SETTLE)
+    replies = list(querier.get(key, timeout=WAIT))
+    q.undeclare()
+    return any(r.ok is not None for r in replies)
+
+
+def token_seen(declarer: zenoh.Session, key: str, observer: zenoh.Session) -> bool:
+    seen = threading.Event()
+    sub = observer.liveliness().declare_subscriber(key, lambda s: seen.set())
+    time.sleep(SETTLE)
+    token = declarer.liveliness().declare_token(key)
+    ok = seen.wait(WAIT)
+    token.undeclare()
+    sub.undeclare()
+    return ok
+
+
+# -- what each role may do ---------------------------------------------------------------------------
+
+def test_the_service_publishes_trajectories_and_stops_that_adapters_hear(roles: Callable[[str], zenoh.Session]) -> None:
+    service, adapter = roles("service"), roles("adapter")
+    assert delivered(service, "armd/desk4/trajectory", adapter)
+    assert delivered(service, "armd/desk4/estop", adapter)
+    assert delivered(service, "armd/desk4/gripper", adapter)
+
+
+def test_adapters_report_to_the_service_and_their_tokens_are_seen(roles: Callable[[str], zenoh.Session]) -> None:
+    service, adapter = roles("service"), roles("adapter")
+    assert delivered(adapter, "armd/desk4/state", service)
+    assert delivered(adapter, "armd/desk4/events", service)
+    assert token_seen(adapter, "armd/desk4/adapter/a1", service)
+
+
+def test_an_operator_asks_every_verb_stops_and_watches(roles: Callable[[str], zenoh.Session]) -> None:
+    service, operator, adapter = roles("service"), roles("operator"), roles("adapter")
+    assert answered(operator, "armd/desk4/move", service)
+    assert delivered(operator, "armd/desk4/estop", adapter)
+    assert delivered(operator, "armd/desk4/unlock", adapter)
+    assert delivered(adapter, "armd/desk4/state", operator)
+    assert delivered(service, "armd/desk4/trajectory", operator)
+
+
+def test_a_guest_asks_the_read_only_verbs(roles: Callable[[str], zenoh.Session]) -> None:
+    service, guest = roles("service"), roles("guest")
+    assert answered(guest, "armd/desk4/ik", service)
+    assert answered(guest, "armd/robots", service)
+
+
+# -- and what each may not ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("verb", ["move", "stop", "gripper"])
+def test_a_guest_cannot_ask_a_verb_that_moves(roles: Callable[[str], zenoh.Session], verb: str) -> None:
+    service, guest = roles("service"), roles("guest")
+    assert not answered(guest, f"armd/desk4/{verb}", service)
+
+
+@pytest.mark.parametrize("key", ["trajectory", "estop", "gripper", "unlock"])
+def test_a_guest_cannot_command_an_adapter(roles: Callable[[str], zenoh.Session], key: str) -> None:
+    guest, adapter = roles("guest"), roles("adapter")
+    assert not delivered(guest, f"armd/desk4/{key}", adapter)
+
+
+@pytest.mark.parametrize("key", ["state", "events"])
+def test_a_guest_cannot_speak_for_an_adapter(roles: Callable[[str], zenoh.Session], key: str) -> None:
+    guest, service = roles("guest"), roles("service")
+    assert not delivered(guest, f"armd/desk4/{key}", service)
+
+
+def test_a_guest_cannot_pose_as_an_adapter_or_a_service(roles: Callable[[str], zenoh.Session]) -> None:
+    guest, service, operator = roles("guest"), roles("service"), roles("operator")
+    assert not token_seen(guest, "armd/desk4/adapter/fake", service)
+    assert not answered(operator, "armd/desk4/stop", guest)
+
+
+def test_a_guest_cannot_watch_trajectories(roles: Callable[[str], zenoh.Session]) -> None:
+    service, guest = roles("service"), roles("guest")
+    assert not delivered(service, "armd/desk4/trajectory", guest)
+
+
+def test_an_adapter_cannot_answer_for_the_service(roles: Callable[[str], zenoh.Session]) -> None:
+    """The spoof of the issue: a complete armd/** queryable declared with the adapter's
+    credentials answered operators' stops while the service was away."""
+    adapter, operator = roles("adapter"), roles("operator")
+    assert not answered(operator, "armd/desk4/stop", adapter)
+
+
+def test_an_adapter_cannot_ask_verbs_or_command_other_adapters(roles: Callable[[str], zenoh.Session]) -> None:
+    service, adapter, other = roles("service"), roles("adapter"), roles("adapter")
+    assert not answered(adapter, "armd/desk4/move", service)
+    assert not delivered(adapter, "armd/desk4/trajectory", other)
+    assert not delivered(adapter, "armd/desk4/estop", other)
+
+
+def test_an_operator_cannot_bypass_the_service_or_speak_for_an_adapter(
+        roles: Callable[[str], zenoh.Session]) -> None:
+    operator, adapter, service, other = roles("operator"), roles("adapter"), roles("service"), roles("operator")
+    assert not delivered(operator, "armd/desk4/trajectory", adapter)  # (trajectories come checked, from the service)
+    assert not delivered(operator, "armd/desk4/gripper", adapter)
+    assert not delivered(operator, "armd/desk4/state", service)
+    assert not token_seen(operator, "armd/desk4/adapter/fake", service)
+    assert not answered(other, "armd/desk4/move", operator)
+
+
+def test_the_service_cannot_speak_for_an_adapter(roles: Callable[[str], zenoh.Session]) -> None:
+    service, observer, adapter = roles("service"), roles("service"), roles("adapter")
+    assert not delivered(service, "armd/desk4/state", observer)
+    assert not token_seen(service, "armd/desk4/adapter/fake", observer)
+    assert not delivered(service, "armd/desk4/unlock", adapter)
