@@ -20,10 +20,11 @@ for the queryable), where a hand-over to a worker would cost more than the work
 (bench/service.py); their path is kept short, as it runs once per request on a CPU that the
 router and the clients share: keys are routed with one look-up, counters take one lock, and
 the debug line is formatted only when debug is on. The rest are served on a thread
-pool, ``stop`` on a pool of its own, so that a queue of IK batches and plans cannot delay it
-(measured by bench/load.py); every request gets exactly one reply, an error reply for anything
-that goes wrong, and an unexpected exception is logged with its traceback and answered
-``internal``: the service keeps serving.
+pool, ``stop`` on a pool of its own and ``move`` and ``gripper`` on another, so that a queue of
+IK batches and plans cannot delay them (measured by bench/load.py and bench/flood.py); every
+request gets exactly one reply, an error reply for anything that goes wrong, and an
+unexpected exception is logged with its traceback and answered ``internal``: the service
+keeps serving.
 
 Every request has a deadline (:mod:`service.deadline`), counted from when Zenoh handed it
 over: one that waited in the queue past it is answered ``deadline`` without being worked
@@ -108,6 +109,7 @@ class Service:
                                  self._publish_gripper, self._publish_estop)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
+        self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
                                                             congestion_control=zenoh.CongestionControl.BLOCK)
@@ -163,7 +165,7 @@ class Service:
         if _quick(key, body, route):  # answered here, on this thread: no hand-over to a worker
             self._serve(query, key_expr, arrived, key, body, route, False)
             return
-        pool = self._stops if key.endswith("/stop") and key.count("/") == self.prefix.count("/") + 2 else self._pool
+        pool = self._pool_for(key, route)
         with self._lock:
             self._in_flight += 1
         try:
@@ -172,6 +174,15 @@ class Service:
             with self._lock:
                 self._in_flight -= 1
             query.drop()
+
+    def _pool_for(self, key: str, route: Route | None) -> ThreadPoolExecutor:
+        """``stop`` on a pool of its own; ``move`` and ``gripper`` on another (what moves the arm
+        never waits behind IK batches and plans); everything else on the workers."""
+        verb = route[1] if route is not None else (
+            key.rsplit("/", 1)[-1] if key.count("/") == self.prefix.count("/") + 2 else "")
+        if verb == "stop":
+            return self._stops
+        return self._commands if verb in ("move", "gripper") else self._pool
 
     def _serve(self, query: zenoh.Query, key_expr: zenoh.KeyExpr, arrived: float, key: str, body: bytes,
                route: Route | None, pooled: bool) -> None:
@@ -428,6 +439,7 @@ class Service:
                 log.debug("undeclare failed", exc_info=True)
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._stops.shutdown(wait=True, cancel_futures=True)
+        self._commands.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
 
 
