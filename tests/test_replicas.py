@@ -3,12 +3,15 @@ the other keeps answering."""
 
 from __future__ import annotations
 
+import time
+
 import zenoh
 
 import robots
 from clients import ArmClient
 from service.server import Service
 from service.zconfig import network_config
+from tests.conftest import wait_for
 
 
 def test_two_replicas_answer_each_request_once(router: str) -> None:
@@ -20,8 +23,11 @@ def test_two_replicas_answer_each_request_once(router: str) -> None:
             for i in range(60):
                 replies = list(c.session.get("replicated/gupta3/fk", payload=b'{"q": [0, 1, -1]}', timeout=10.0))
                 assert len(replies) == 1 and replies[0].ok is not None, i
+            # each request processed by exactly one replica (counted just after its reply is sent)
+            wait_for(lambda: sum(r.stats()["served"] for r in replicas) >= 60, timeout=2, what="the counts")
+            time.sleep(0.1)
             served = [r.stats()["served"] for r in replicas]
-            assert sum(served) == 60  # each request processed by exactly one replica
+            assert sum(served) == 60
             # the replica that answered goes away; the other answers from then on
             busy = served.index(max(served))
             replicas[busy].close()
