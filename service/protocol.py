@@ -486,10 +486,13 @@ _MOTION = {"goal": GOAL, "path": Word(PATH_WORDS), "speed": Num(), "rate_hz": Nu
 
 NOTHING = Obj({}, top=True)  # robots, info, stop
 FK = Obj({"q": JOINTS}, required=(("q", "the joint vector [rad]"),), top=True)
-IK_ONE = Obj({"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag()},
+# (ik: the handler picks IK_ONE or IK_BATCH by which of target and targets is there, and refuses
+# both; the other one is named in each so that it may be given as null, which is absent)
+IK_ONE = Obj({"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag(),
+              "targets": ANY},
              required=(("target", "[x, y, z] in metres, or a sensor reading (or 'targets', a batch)"),), top=True)
 IK_BATCH = Obj({"targets": ListOf(POINT, min_items=1, items_are="[x, y, z] points in metres"),
-                "approach": APPROACHES, "seeds": Rows(JOINTS), "tolerance": Num("m")},
+                "approach": APPROACHES, "seeds": Rows(JOINTS), "tolerance": Num("m"), "target": ANY},
                required=(("targets", "a list of [x, y, z] points"),), top=True)
 PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),),
            top=True)
