@@ -1,5 +1,8 @@
 """Fuzz benchmark: N bad requests (default 10,000) to a service in another process, over Zenoh.
 
+The requests are tests/fuzzing.py's: malformed payloads, and valid requests broken in one
+place (unknown keys at every level, booleans, strings and huge numbers where numbers go,
+both of two exclusive fields). Any ``internal`` reply is a defect and is listed.
 Checks that each gets exactly one structured error reply, that no trajectory or gripper
 command is published, that the service's resident memory stays bounded, and that a valid
 request afterwards gets the right answer. Prints the counts per error code, the time, the
@@ -91,6 +94,8 @@ def main() -> None:
                     code = f"zenoh:{body[:40]!r}"
                     print(f"  {key}: {code} for {payload[:60]!r}", file=sys.stderr)
                 codes[code] = codes.get(code, 0) + 1
+                if code == "internal":  # a defect: the request that found it
+                    print(f"  internal for {key}: {payload[:200]!r}: {body[:200]!r}", file=sys.stderr)
             elapsed = sum(armd_us) / 1e6  # the bad requests' round trips alone, not the echoes
             time.sleep(0.3)
             after = rss_mb(proc.pid)

@@ -18,6 +18,9 @@ from .trajectory import Trajectory, build
 
 DEFAULT_RATE_HZ = 50.0
 PATHS = ("joint", "line")
+# The slowest speed planned: below it the scaled limits (jerk by speed^3) vanish in Ruckig's
+# arithmetic (at 1e-30 it refuses "zero limits"), and even at it 1e-9 rad takes 15 minutes.
+MIN_SPEED = 1e-6
 
 
 def _rate(robot: Robot, rate_hz: object) -> float:
@@ -29,8 +32,8 @@ def _rate(robot: Robot, rate_hz: object) -> float:
 
 def _speed(speed: object) -> float:
     if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not math.isfinite(speed) \
-            or not 0 < speed <= 1:
-        raise BadRequest(f"speed must be a number in (0, 1], got {speed!r}", field="speed")
+            or not MIN_SPEED <= speed <= 1:
+        raise BadRequest(f"speed must be a number in [{MIN_SPEED:g}, 1], got {speed!r}", field="speed")
     return float(speed)
 
 
@@ -56,7 +59,7 @@ def plan(
             or :class:`~planning.goal.CartesianGoal` (solved by IK, seeded with the start).
         path: ``"joint"`` (time-synchronised in joint space) or ``"line"`` (the tool on the
             straight segment to the goal).
-        speed: fraction (0, 1] of the velocity limits (acceleration and jerk scaled to match).
+        speed: fraction [MIN_SPEED, 1] of the velocity limits (acceleration and jerk scaled to match).
         rate_hz: samples per second (the adapter's control rate); default from the arm's
             ``[controller] rate_hz``, else 50.
         via: waypoints (same forms as ``goal``) passed through in order, without stopping

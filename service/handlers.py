@@ -2,10 +2,12 @@
 reply object.
 
 No Zenoh here: :mod:`service.server` calls these and turns what they raise into error
-replies. Every argument is checked (unknown fields refused) before anything is solved,
-planned or published. Long work checks the deadline between its stages, and a verb that
-publishes checks it once more just before publishing: a request that overran has changed
-nothing. Once published, a command is answered with success, whatever the clock says.
+replies. Every request is checked whole against its verb's shape (:mod:`service.protocol`:
+unknown fields at every level, every number a finite JSON number of a sane size, fields that
+exclude each other) before anything is solved, planned or published. Long work checks the
+deadline between its stages, and a verb that publishes checks it once more just before
+publishing: a request that overran has changed nothing. Once published, a command is
+answered with success, whatever the clock says.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ from planning import JointState
 from robots import ArmdError, BadRequest, PositionUnknown, Robot
 
 from .deadline import Deadline
-from .protocol import PROTOCOL_VERSION, Limits, NoAdapter, allowed, flag, number
+from .protocol import FK, GRIPPER, IK_BATCH, IK_ONE, MOVE, NOTHING, PLAN, PROTOCOL_VERSION, Limits, NoAdapter, check
 from .state import StateBook
 
 Publish = Callable[[Robot, dict[str, Any]], Any]  # (a trajectory's: the id of the adapter that accepted it)
@@ -45,12 +47,12 @@ class Handlers:
     # -- read-only verbs -------------------------------------------------------------------
 
     def robots(self, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        allowed(req)
+        check(NOTHING, req)
         arms = [{"name": a.name, "title": a.title, "joints": list(a.joint_names)} for a in self.arms.values()]
         return {"protocol": PROTOCOL_VERSION, "robots": arms, "limits": dataclasses.asdict(self.limits)}
 
     def info(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        allowed(req)
+        check(NOTHING, req)
         known = self.book.current(arm)
         out = arm.describe()
         out.update({"protocol": PROTOCOL_VERSION, "adapters": self.adapters(arm),
@@ -59,44 +61,37 @@ class Handlers:
         return out
 
     def fk(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        allowed(req, "q")
-        if "q" not in req:
-            raise BadRequest("fk needs 'q', the joint vector [rad]", field="q")
+        req = check(FK, req, arm.joint_names)
         q = arm.joint_vector(req["q"])
         pose = arm.pose(q)
         return {"q": q.tolist(), "position": pose.position.tolist(), "pitch": pose.pitch,
                 "within_limits": arm.limits.contains(q)}
 
     def ik(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        if "targets" in req:
-            allowed(req, "targets", "approach", "seeds", "tolerance")
+        if req.get("targets") is not None:
+            if req.get("target") is not None:
+                raise BadRequest("target and targets exclude each other: one target, or a batch", field="target")
             targets = req["targets"]
-            if not isinstance(targets, list):
-                raise BadRequest("targets must be a list of [x, y, z] points", field="targets")
-            if len(targets) > self.limits.max_batch:
+            if isinstance(targets, list) and len(targets) > self.limits.max_batch:  # before walking them
                 raise BatchTooLarge(len(targets), self.limits.max_batch)
-            tol = number(req, "tolerance", solvers.DEFAULT_TOLERANCE)
-            assert tol is not None
-            return solvers.solve_ik_batch(arm, targets, approach=req.get("approach"), seeds=req.get("seeds"),
-                                          tolerance=tol, check=deadline.check).to_dict()
-        allowed(req, "target", "approach", "seed", "tolerance", "quantise")
-        if "target" not in req:
-            raise BadRequest("ik needs 'target' ([x, y, z] in metres, or a sensor reading), or 'targets'",
-                             field="target")
-        tol = number(req, "tolerance", solvers.DEFAULT_TOLERANCE)
-        assert tol is not None
+            req = check(IK_BATCH, req, arm.joint_names)
+            return solvers.solve_ik_batch(arm, req["targets"], approach=req.get("approach"), seeds=req.get("seeds"),
+                                          tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
+                                          check=deadline.check).to_dict()
+        req = check(IK_ONE, req, arm.joint_names)
         return solvers.solve_ik(arm, req["target"], approach=req.get("approach"), seed=req.get("seed"),
-                                tolerance=tol, quantise=flag(req, "quantise")).to_dict()
+                                tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
+                                quantise=req.get("quantise", False)).to_dict()
 
     def plan(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        allowed(req, "start", "goal", "path", "speed", "rate_hz", "via")
+        req = check(PLAN, req, arm.joint_names)
         traj = self._plan(arm, req, req.get("start"), deadline)
         return traj.to_dict()
 
     # -- verbs that move the arm --------------------------------------------------------------
 
     def move(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
-        allowed(req, "goal", "path", "speed", "rate_hz", "via")
+        req = check(MOVE, req, arm.joint_names)
         known = self.book.current(arm)
         traj = self._plan(arm, req, known.state, deadline)  # a bad request is told so, adapter or not
         if self.adapters(arm) == 0:
@@ -120,7 +115,7 @@ class Handlers:
         """Never refused: not for lateness, not for a state outside the limits. The stop goes
         out on ``estop`` first, and every adapter brakes from its own state; the reply's
         duration and rest pose are the service's estimate from what it knows of the arm."""
-        allowed(req)
+        check(NOTHING, req)
         ident = uuid.uuid4().hex
         self.publish_estop(arm, {"id": ident, "by": "service"})
         known = self.book.current(arm)
@@ -135,12 +130,9 @@ class Handlers:
 
     def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between: published to the adapters."""
-        allowed(req, "opening")
+        opening: float = check(GRIPPER, req)["opening"]
         if arm.gripper is None:
             raise BadRequest(f"{arm.name} has no gripper", field="opening")
-        opening = number(req, "opening")
-        if opening is None:
-            raise BadRequest("gripper needs 'opening', from 0 (closed) to 1 (open)", field="opening")
         pulse = arm.gripper.pulse(opening)  # validates the range
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would move the gripper", robot=arm.name)
@@ -151,11 +143,9 @@ class Handlers:
     # -- helpers ----------------------------------------------------------------------------
 
     def _plan(self, arm: Robot, req: Mapping[str, Any], start: object, deadline: Deadline) -> planning.Trajectory:
-        if "goal" not in req:
-            raise BadRequest("a goal is needed: a joint vector, or {\"target\": [x, y, z], \"approach\": ...}",
-                             field="goal")
+        """``req``: checked against its verb's shape already."""
         via = req.get("via", [])
-        if isinstance(via, list) and len(via) > self.limits.max_waypoints:
+        if len(via) > self.limits.max_waypoints:
             raise BadRequest(f"at most {self.limits.max_waypoints} waypoints", field="via")
         if start is None:
             start = self.book.current(arm).state

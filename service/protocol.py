@@ -1,16 +1,20 @@
 """The JSON protocol (version 1): request validation and reply shapes, independent of Zenoh.
 
 Every request is a JSON object; every reply is a JSON object. A bad request raises
-:class:`robots.BadRequest` naming the ``field``; the service turns any
-:class:`robots.ArmdError` into an error reply ``{"code", "message", ...}`` in one place.
-The full description, with a JSON Schema per verb, is ``docs/protocol.md``.
+:class:`robots.BadRequest` naming the ``field`` by its path (``start.jerk``, ``q[1]``,
+``via[0].target``); the service turns any :class:`robots.ArmdError` into an error reply
+``{"code", "message", ...}`` in one place. Each verb's request has a shape here (``FK``,
+``IK_ONE``, ``IK_BATCH``, ``PLAN``, ``MOVE``, ``GRIPPER``, ``NOTHING``), checked whole
+before anything is solved: unknown keys at every level, numbers that are JSON numbers
+(not true/false), finite and of a sane size, fields that exclude each other. The full
+description, with a JSON Schema per verb, is ``docs/protocol.md``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -75,7 +79,9 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     # than the limit the request cannot be too deep, and is not walked (one target: two).
     if payload.count(b"[") + payload.count(b"{") >= limits.max_depth and _depth(obj, 1) > limits.max_depth:
         raise BadRequest(f"the request is nested deeper than {limits.max_depth} levels", field="payload")
-    version = obj.get("protocol", PROTOCOL_VERSION)
+    version = obj.get("protocol")
+    if version is None:  # absent, or null: an optional field given as null is absent
+        return obj
     if version != PROTOCOL_VERSION or isinstance(version, bool):
         raise BadRequest(f"protocol version {version!r} is not spoken here; this service speaks {PROTOCOL_VERSION}",
                          field="protocol")
@@ -181,3 +187,320 @@ def flag(req: Mapping[str, Any], name: str, default: bool = False) -> bool:
     if not isinstance(v, bool):
         raise BadRequest(f"{name} must be true or false, got {v!r}", field=name)
     return v
+
+
+# -- request shapes --------------------------------------------------------------------------
+#
+# What a value means for one arm (its joint limits, its sensors, its reach, a speed Ruckig can
+# time) is checked later, by the solvers and the planner. The sizes here only keep out what no
+# request can mean, before it reaches code that would overflow on it (a line 1e308 m long).
+
+MAX_METRES = 10.0  # [m] a Cartesian coordinate or a sensor reading: beyond any small arm's reach
+MAX_RADIANS = 100.0  # [rad] (m for a prismatic joint) a joint value, a bearing: 16 turns
+MAX_RATE = 1e6  # [rad/s], [rad/s^2] a start state's velocity or acceleration (its limits come later)
+MAX_NAME = 64  # characters of a name (a sensor's)
+APPROACH_WORDS = ("parallel", "perpendicular", "free")  # solvers.APPROACHES (tests check they agree)
+PATH_WORDS = ("joint", "line")  # planning.PATHS
+Joints = Sequence[str]  # the arm's joint names: how long a joint vector is
+
+
+def _show(v: object) -> str:
+    """A value as the client wrote it (JSON), cut short."""
+    try:
+        text = json.dumps(v)
+    except (TypeError, ValueError):
+        text = repr(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _kind(v: object) -> str:
+    """The JSON type of a parsed value (true and false are not numbers, whatever Python says)."""
+    t = type(v)
+    if t is float or t is int:
+        return "number"
+    if t is str:
+        return "string"
+    if t is list or t is tuple:
+        return "list"
+    if isinstance(v, Mapping):
+        return "object"
+    if t is bool:
+        return "boolean"
+    if v is None:
+        return "null"
+    if isinstance(v, (int, float)):  # NumPy scalars, from Python callers
+        return "number"
+    if hasattr(v, "tolist"):  # NumPy arrays
+        return "list"
+    return type(v).__name__
+
+
+def _items(v: object) -> Sequence[Any]:
+    """A list's items (a NumPy array's, as a list: from Python callers)."""
+    tolist = getattr(v, "tolist", None)
+    out: Sequence[Any] = tolist() if tolist is not None else v  # type: ignore[assignment]
+    return out
+
+
+def real(v: object, field: str, lo: float = -math.inf, hi: float = math.inf, unit: str = "") -> float:
+    """``v`` as a float if it is a JSON number (not a boolean), finite, in [lo, hi]; else
+    :class:`BadRequest` naming ``field``. An integer too large for a double is refused, not
+    overflowed."""
+    if type(v) is float:
+        if lo <= v <= hi and v - v == 0.0:  # (NaN fails the comparison, an infinity the difference)
+            return v
+    elif _kind(v) == "number":
+        try:
+            f = float(v)  # type: ignore[arg-type]
+        except OverflowError:  # an integer beyond a double
+            f = math.inf
+        if lo <= f <= hi and math.isfinite(f):
+            return f
+    if math.isinf(lo) and math.isinf(hi):
+        want = f"a finite number [{unit}]" if unit else "a finite number"
+        raise BadRequest(f"{field} must be {want}, got {_show(v)}", field=field)
+    unit = f" {unit}" if unit else ""
+    want = f"a number within +-{hi:g}{unit}" if lo == -hi else f"a number in [{lo:g}, {hi:g}]{unit}"
+    raise BadRequest(f"{field} must be {want}, got {_show(v)}", field=field)
+
+
+class Shape:
+    """What a request value must look like. :meth:`check` returns the value (an object with
+    its null members dropped: null is absent) or raises :class:`BadRequest` at its path."""
+
+    what = "a value"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        return v
+
+
+ANY = Shape()  # checked elsewhere (the envelope: protocol, deadline)
+
+
+@dataclass(frozen=True)
+class Num(Shape):
+    """A finite JSON number in [lo, hi] ``unit``."""
+
+    unit: str = ""
+    lo: float = -math.inf
+    hi: float = math.inf
+
+    @property
+    def what(self) -> str:  # type: ignore[override]
+        return f"a number [{self.unit}]" if self.unit else "a number"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        return real(v, field, self.lo, self.hi, self.unit)
+
+
+@dataclass(frozen=True)
+class Vec(Shape):
+    """A list of ``n`` numbers (None: one per joint), each within +-``bound`` ``unit``."""
+
+    n: int | None
+    unit: str
+    bound: float
+
+    @property
+    def what(self) -> str:  # type: ignore[override]
+        return f"a list of {self.n if self.n is not None else 'joint'} values [{self.unit}]"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if _kind(v) != "list":
+            raise BadRequest(f"{field} must be {self.what}, got {_show(v)}", field=field)
+        items = _items(v)
+        n = len(joints) if self.n is None else self.n
+        if len(items) != n:
+            names = f" ({', '.join(joints)})" if self.n is None else ""
+            raise BadRequest(f"{field} must have {n} values{names}, got {len(items)}", field=field)
+        b = self.bound
+        for x in items:
+            if type(x) is not float or not -b <= x <= b:  # (the common case: floats within bounds)
+                break
+        else:
+            return v
+        for i, x in enumerate(items):
+            real(x, f"{field}[{i}]", -b, b, self.unit)
+        return v
+
+
+@dataclass(frozen=True)
+class Rows(Shape):
+    """One ``row`` for all, or a list of rows (one per item of a batch)."""
+
+    row: Vec
+
+    what = "one list of values or a list of them"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if _kind(v) == "list" and len(v) > 0 and _kind(v[0]) == "list":  # type: ignore[arg-type,index]
+            return ListOf(self.row).check(v, field, joints)
+        return self.row.check(v, field, joints)
+
+
+@dataclass(frozen=True)
+class ListOf(Shape):
+    """A list, each item of ``item``'s shape (``field[i]``), at least ``min_items`` of them."""
+
+    item: Shape
+    min_items: int = 0
+    items_are: str = ""  # what the items are, for messages (default: the item's shape says)
+
+    @property
+    def what(self) -> str:  # type: ignore[override]
+        return f"a list of {self.items_are or self.item.what}"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if _kind(v) != "list":
+            raise BadRequest(f"{field} must be {self.what}, got {_show(v)}", field=field)
+        items = _items(v)
+        if len(items) < self.min_items:
+            raise BadRequest(f"{field} must have at least {self.min_items} item(s), got {len(items)}", field=field)
+        out = [self.item.check(x, f"{field}[{i}]", joints) for i, x in enumerate(items)]
+        return v if all(a is b for a, b in zip(out, items, strict=True)) else out
+
+
+@dataclass(frozen=True)
+class Word(Shape):
+    """A string: one of ``words``, or (none given) any of at most MAX_NAME characters."""
+
+    words: tuple[str, ...] = ()
+
+    @property
+    def what(self) -> str:  # type: ignore[override]
+        return "one of " + ", ".join(f"{w!r}" for w in self.words) if self.words else "a name (a string)"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if type(v) is str and (v in self.words if self.words else 0 < len(v) <= MAX_NAME):
+            return v
+        raise BadRequest(f"{field} must be {self.what}, got {_show(v)}", field=field)
+
+
+@dataclass(frozen=True)
+class Flag(Shape):
+    what = "true or false"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if type(v) is bool:
+            return v
+        raise BadRequest(f"{field} must be true or false, got {_show(v)}", field=field)
+
+
+@dataclass(frozen=True)
+class Either(Shape):
+    """One of several shapes, chosen by the value's JSON type (``list``, ``object``,
+    ``string``, ``number``)."""
+
+    options: Mapping[str, Shape]
+    what: str = "a value"
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        shape = self.options.get(_kind(v))
+        if shape is None:
+            raise BadRequest(f"{field} must be {self.what}, got {_show(v)}", field=field)
+        return shape.check(v, field, joints)
+
+
+@dataclass(frozen=True)
+class Obj(Shape):
+    """An object with these ``fields`` and no other: ``required`` ones (name, what it is),
+    at most one of each ``exclusive`` pair, and exactly one of ``one_of`` (when given).
+    ``top``: the request itself (its fields are named bare, and the envelope is allowed)."""
+
+    fields: Mapping[str, Shape]
+    required: tuple[tuple[str, str], ...] = ()
+    exclusive: tuple[tuple[str, str, str], ...] = ()  # (a, b, why)
+    one_of: tuple[str, ...] = ()
+    what: str = "an object"
+    top: bool = False
+
+    def check(self, v: object, field: str, joints: Joints) -> Any:
+        if not isinstance(v, Mapping):
+            raise BadRequest(f"{field} must be {self.what}, got {_show(v)}", field=field)
+        prefix = f"{field}." if field else ""
+        known = self.fields
+        if self.top:
+            for k in v:
+                if k not in known and k not in ENVELOPE:
+                    raise BadRequest(f"unknown field {k!r}; this verb takes: {', '.join(known) or 'nothing'}",
+                                     field=k)
+        else:
+            for k in v:
+                if k not in known:
+                    raise BadRequest(f"unknown field {prefix + k!r} ({field} takes: {', '.join(known)})",
+                                     field=f"{prefix}{k}")
+        obj: Mapping[str, Any] = v
+        if any(x is None for x in v.values()):  # null is absent
+            obj = {k: x for k, x in v.items() if x is not None}
+        where = "the request" if self.top else field
+        for name, desc in self.required:
+            if name not in obj:
+                raise BadRequest(f"{where} needs {name!r}, {desc}", field=prefix + name)
+        for a, b, why in self.exclusive:
+            if a in obj and b in obj:
+                raise BadRequest(f"{prefix}{a} and {prefix}{b} exclude each other: {why}", field=prefix + b)
+        if self.one_of and not any(name in obj for name in self.one_of):
+            raise BadRequest(f"{where} needs one of {', '.join(repr(n) for n in self.one_of)}",
+                             field=field or self.one_of[0])
+        changed = obj is not v
+        out = dict(obj) if changed else None
+        for k, x in obj.items():
+            shape = known.get(k, ANY)
+            y = shape.check(x, prefix + k, joints)
+            if y is not x:
+                if out is None:
+                    out = dict(obj)
+                out[k] = y
+        return obj if out is None else out
+
+
+def check(shape: Obj, req: Mapping[str, Any], joints: Joints = ()) -> dict[str, Any]:
+    """The request checked whole against its verb's ``shape`` (null members dropped), or
+    :class:`BadRequest` naming the first field that is wrong by its path."""
+    out: dict[str, Any] = shape.check(req, "", joints)
+    return out
+
+
+# The verbs' shapes (docs/protocol.md has them as JSON Schemas).
+POINT = Vec(3, "m", MAX_METRES)
+JOINTS = Vec(None, "rad", MAX_RADIANS)
+PITCH = Num("rad", -math.pi, math.pi)
+SENSOR_READING = Obj({"sensor": Word(), "range": Num("m", -MAX_METRES, MAX_METRES),
+                      "bearing": Num("rad", -MAX_RADIANS, MAX_RADIANS)},
+                     required=(("sensor", "the sensor's name"), ("range", "the reading [m]")),
+                     what='a sensor reading {"sensor", "range", "bearing"}')
+TARGET = Either({"list": POINT, "object": SENSOR_READING},
+                'a point [x, y, z] in metres or a sensor reading {"sensor", "range", "bearing"}')
+APPROACH = Either({"string": Word(APPROACH_WORDS), "number": PITCH},
+                  "'parallel', 'perpendicular', 'free' or a pitch in [-pi, pi] rad")
+APPROACHES = Either({"string": Word(APPROACH_WORDS), "number": PITCH, "list": ListOf(PITCH)},
+                    "'parallel', 'perpendicular', 'free', a pitch in [-pi, pi] rad or one pitch per target")
+GOAL = Either({"list": JOINTS,
+               "object": Obj({"target": TARGET, "approach": APPROACH, "q": JOINTS},
+                             exclusive=(("target", "q", "a goal is a Cartesian target or a joint vector"),
+                                        ("q", "approach", "an approach is for a Cartesian target")),
+                             one_of=("target", "q"), what='a goal {"target", "approach"} or {"q"}')},
+              'a joint vector [rad], {"target": [x, y, z], "approach": ...} or {"q": [...]}')
+START = Either({"list": JOINTS,
+                "object": Obj({"position": JOINTS, "velocity": Vec(None, "rad/s", MAX_RATE),
+                               "acceleration": Vec(None, "rad/s^2", MAX_RATE)},
+                              required=(("position", "the joint vector [rad]"),),
+                              what='a state {"position", "velocity", "acceleration"}')},
+               'a joint vector [rad] or {"position", "velocity", "acceleration"}')
+_MOTION = {"goal": GOAL, "path": Word(PATH_WORDS), "speed": Num(), "rate_hz": Num("Hz"),
+           "via": ListOf(GOAL, items_are="goals")}
+
+NOTHING = Obj({}, top=True)  # robots, info, stop
+FK = Obj({"q": JOINTS}, required=(("q", "the joint vector [rad]"),), top=True)
+# (ik: the handler picks IK_ONE or IK_BATCH by which of target and targets is there, and refuses
+# both; the other one is named in each so that it may be given as null, which is absent)
+IK_ONE = Obj({"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag(),
+              "targets": ANY},
+             required=(("target", "[x, y, z] in metres, or a sensor reading (or 'targets', a batch)"),), top=True)
+IK_BATCH = Obj({"targets": ListOf(POINT, min_items=1, items_are="[x, y, z] points in metres"),
+                "approach": APPROACHES, "seeds": Rows(JOINTS), "tolerance": Num("m"), "target": ANY},
+               required=(("targets", "a list of [x, y, z] points"),), top=True)
+PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),),
+           top=True)
+MOVE = Obj(_MOTION, required=PLAN.required, top=True)
+GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)

@@ -47,3 +47,33 @@ def test_examples_work(router: str, service: object, client: ArmClient) -> None:
         for s in sims:
             s.close()
         session.close()
+
+
+def test_the_schemas_name_the_fields_the_code_takes() -> None:
+    """Each verb's JSON Schema in the doc has the top-level fields of the verb's shape in
+    service/protocol.py, no more, no fewer (the envelope aside)."""
+    from service.protocol import ANY, FK, IK_BATCH, IK_ONE, PLAN
+
+    shapes = {"q": FK, "target": IK_ONE, "targets": IK_BATCH, "goal": PLAN}
+    seen = set()
+    for block in BLOCKS:
+        schema = json.loads(block)
+        if schema.get("type") != "object" or not schema.get("required"):
+            continue
+        shape = shapes[schema["required"][0]]
+        documented = set(schema["properties"]) - {"protocol", "deadline"}
+        assert documented == {k for k, v in shape.fields.items() if v is not ANY}, schema["required"]
+        assert schema["additionalProperties"] is False
+        seen.add(schema["required"][0])
+    assert seen == set(shapes)
+
+
+def test_the_sizes_and_the_speed_floor_are_the_codes() -> None:
+    from planning.plan import MIN_SPEED
+    from service.protocol import MAX_METRES, MAX_RADIANS, MAX_RATE
+
+    rows = dict(re.findall(r"^ *\| (a Cartesian coordinate|a joint value|a start state's)[^|]*\| (\S+) \|$", DOC, re.M))
+    assert {k: float(v) for k, v in rows.items()} == {"a Cartesian coordinate": MAX_METRES,
+                                                      "a joint value": MAX_RADIANS, "a start state's": MAX_RATE}
+    speed = re.search(r'"speed": \{"type": "number", "minimum": ([0-9.e+-]+), "maximum": 1', DOC)
+    assert speed is not None and float(speed.group(1)) == MIN_SPEED
