@@ -103,6 +103,6 @@ def test_gripper_pulses() -> None:
     g = robots.load("insomniac").gripper
     assert g is not None
     assert (g.pulse(0.0), g.pulse(1.0), g.pulse(0.5)) == (1000, 2000, 1500)
-    for bad in (-0.1, 1.5, float("nan")):
+    for bad in (-0.1, 1.5, float("nan"), True, "0.5"):
         with pytest.raises(robots.BadRequest):
             g.pulse(bad)
