@@ -44,10 +44,10 @@ import zenoh
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-import robots  # noqa: E402
-from clients import ArmClient  # noqa: E402
-from clients.emulators.grbl import GrblEmulator  # noqa: E402
-from clients.emulators.measure import (  # noqa: E402
+from armd import robots  # noqa: E402
+from armd.clients import ArmClient  # noqa: E402
+from armd.clients.emulators.grbl import GrblEmulator  # noqa: E402
+from armd.clients.emulators.measure import (  # noqa: E402
     Motion,
     actuator_limits_deg,
     fitted_peaks,
@@ -57,10 +57,10 @@ from clients.emulators.measure import (  # noqa: E402
     ssc32_motion,
     ssc32_speed_noise,
 )
-from clients.emulators.process import EmulatorProcess  # noqa: E402
-from clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
-from service.server import Service  # noqa: E402
-from service.zconfig import free_endpoint, network_config  # noqa: E402
+from armd.clients.emulators.process import EmulatorProcess  # noqa: E402
+from armd.clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
+from armd.service.server import Service  # noqa: E402
+from armd.service.zconfig import free_endpoint, network_config  # noqa: E402
 
 CONDITIONS = ("idle", "busy", "slow board", "stall")
 SSC32_GOALS = ([1.2, 2.0, -1.8, 1.0, 1.0], [-0.9, 1.0, -0.6, -1.0, -1.0])
@@ -109,7 +109,7 @@ class Bench:
         env = {**os.environ, "ARMD_STATE_DIR": state_dir}
         log = Path(state_dir) / "adapter.log"  # (a pipe nobody reads would stall the adapter once full)
         with log.open("w") as err:
-            proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", kind, robot, "--port", port,
+            proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", kind, robot, "--port", port,
                                      "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
                                     cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
         wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30,

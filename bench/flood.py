@@ -36,8 +36,8 @@ def flood(endpoint: str, batches: int, targets: int, seconds: float) -> None:
     """The flood process: ``batches`` IK batches in flight for ``seconds``; prints how many were answered."""
     import zenoh
 
-    import robots
-    from service.zconfig import network_config
+    from armd import robots
+    from armd.service.zconfig import network_config
 
     arm = robots.load("desk4")
     rng = np.random.default_rng(0)
@@ -67,7 +67,7 @@ def flood(endpoint: str, batches: int, targets: int, seconds: float) -> None:
 
 def operator(endpoint: str, cycles: int) -> dict[str, list[float]]:
     """Move, stop 0.3 s in, ``cycles`` times: each reply's latency [ms]."""
-    from clients import ArmClient
+    from armd.clients import ArmClient
 
     out: dict[str, list[float]] = {"move": [], "stop": []}
     with ArmClient(endpoint, timeout=30.0) as c:
@@ -102,14 +102,14 @@ def main() -> None:
     if args.worker == "flood":
         flood(args.endpoint, args.batches, args.targets, args.seconds)
         return
-    from service.zconfig import free_endpoint
+    from armd.service.zconfig import free_endpoint
 
     endpoint = free_endpoint()
-    serve = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--sim", "--listen", endpoint],
+    serve = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--sim", "--listen", endpoint],
                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     results: dict[str, Any] = {}
     try:
-        from clients import ArmClient
+        from armd.clients import ArmClient
 
         deadline = time.monotonic() + 180
         while True:  # (a first start compiles: a minute)

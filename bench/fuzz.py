@@ -30,9 +30,9 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 import zenoh  # noqa: E402
 
+from armd.clients import ArmClient  # noqa: E402
+from armd.service.zconfig import free_endpoint  # noqa: E402
 from bench.service import echo_server  # noqa: E402
-from clients import ArmClient  # noqa: E402
-from service.zconfig import free_endpoint  # noqa: E402
 
 BLOCK = zenoh.CongestionControl.BLOCK
 from tests.fuzzing import bad_requests  # noqa: E402
@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10_000)
     args = ap.parse_args()
     endpoint = free_endpoint()
-    proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint], cwd=ROOT,
                             stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     proc.stdout.readline()

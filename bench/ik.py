@@ -48,7 +48,7 @@ if str(HERE.parent) not in sys.path:  # robots/ and solvers/ without an install
 
 import peers  # noqa: E402
 
-import robots  # noqa: E402
+from armd import robots  # noqa: E402
 
 DEFAULT_N = 10_000
 QUICK_N = 300

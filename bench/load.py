@@ -42,7 +42,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from service.zconfig import free_endpoint  # noqa: E402
+from armd.service.zconfig import free_endpoint  # noqa: E402
 
 TIMEOUT = 15.0  # [s] a client's wait for one reply; the service's deadline (4 s) comes first
 STOP_ARM = "insomniac"
@@ -83,7 +83,7 @@ class Mix:
     configurations inside the limits)."""
 
     def __init__(self, seed: int) -> None:
-        import robots
+        from armd import robots
         from tests.fuzzing import bad_requests
 
         self.rng = random.Random(seed)
@@ -161,7 +161,7 @@ def worker_load(endpoint: str, threads: int, seed: int) -> None:
     """A load process: ready, then on 'go <seconds>' from stdin, threads send the mix back to back."""
     import zenoh
 
-    from service.zconfig import client_config
+    from armd.service.zconfig import client_config
 
     mixes = [Mix(seed * 100 + k) for k in range(threads)]
     tally = Tally()
@@ -191,7 +191,7 @@ def worker_stopper(endpoint: str) -> None:
     the time is up or the cycles are done (0: no limit)."""
     import zenoh
 
-    from service.zconfig import client_config
+    from armd.service.zconfig import client_config
 
     tally = Tally()
     stops: list[float] = []
@@ -368,7 +368,7 @@ def main() -> None:
     endpoint = args.endpoint
     if endpoint is None:
         endpoint = free_endpoint()
-        service = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint, "--sim",
+        service = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint, "--sim",
                                     *args.serve_args.split()], cwd=ROOT, stdout=subprocess.PIPE, text=True)
         assert service.stdout is not None
         line = service.stdout.readline()

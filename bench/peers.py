@@ -225,7 +225,7 @@ class Armd(Adapter):
     def __init__(self, robot: Any, tolerance: float) -> None:
         super().__init__(robot, tolerance)
         try:
-            from solvers import solve_ik
+            from armd.solvers import solve_ik
         except Exception as e:  # ImportError while it is being written, or a broken module
             raise Unavailable(f"armd: `from solvers import solve_ik` failed: {type(e).__name__}: {e}") from None
         self._solve = solve_ik
@@ -242,7 +242,7 @@ class Armd(Adapter):
 def armd_batch(robot: Any) -> Any:
     """``solvers.solve_ik_batch`` if armd has it, else None."""
     try:
-        import solvers
+        from armd import solvers
     except Exception:
         return None
     return getattr(solvers, "solve_ik_batch", None)

@@ -24,9 +24,8 @@ import ruckig
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import planning
-import robots
-from planning import PlanRejected
+from armd import planning, robots
+from armd.planning import PlanRejected
 
 
 def _random_q(arm: robots.Robot, rng: np.random.Generator, n: int) -> np.ndarray:

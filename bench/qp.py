@@ -33,8 +33,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import robots
-from solvers import QPRefiner
+from armd import robots
+from armd.solvers import QPRefiner
 
 
 class OSQPRefiner(QPRefiner):

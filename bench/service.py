@@ -43,11 +43,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from service.zconfig import free_port  # noqa: E402
+from armd.service.zconfig import free_port  # noqa: E402
 
 
 def targets(n: int, seed: int = 0) -> list[list[float]]:
-    import robots
+    from armd import robots
 
     arm = robots.load("insomniac")
     rng = np.random.default_rng(seed)
@@ -60,7 +60,7 @@ def echo_server(endpoint: str, embedded: bool, ready: mp.Event, stop: mp.Event) 
     router listening there, placed on the network exactly as the service is."""
     import zenoh
 
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     conf = network_config(listen=[endpoint]) if embedded else network_config(connect=[endpoint])
     with zenoh.open(conf) as session:
@@ -75,8 +75,8 @@ def echo_server(endpoint: str, embedded: bool, ready: mp.Event, stop: mp.Event) 
 def latency(endpoint: str, echo_endpoint: str, n: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
     import zenoh
 
-    from clients import ArmClient
-    from service.zconfig import client_config
+    from armd.clients import ArmClient
+    from armd.service.zconfig import client_config
 
     ts = targets(n)
     ik_us, raw_us, echo_us = [], [], []
@@ -107,7 +107,7 @@ def hammer_raw(endpoint: str, seconds: float, seed: int, out: mp.Queue, key: str
     or against the bare echo (the peer), the same client work either way."""
     import zenoh
 
-    from service.zconfig import client_config
+    from armd.service.zconfig import client_config
 
     payloads = [json.dumps({"target": t}).encode() for t in targets(500, seed)]
     done = lost = errors = 0
@@ -127,7 +127,7 @@ def hammer_raw(endpoint: str, seconds: float, seed: int, out: mp.Queue, key: str
 
 
 def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
-    from clients import ArmClient, NoReply
+    from armd.clients import ArmClient, NoReply
 
     ts = targets(500, seed)
     done = lost = errors = 0
@@ -149,7 +149,7 @@ def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # 
 def start_servers(embedded: bool, stack: contextlib.ExitStack) -> tuple[str, str]:
     """The router (routed only), the service and the echo, each stopped when ``stack`` closes:
     (the service's endpoint, the echo's endpoint)."""
-    cli = [sys.executable, "-m", "clients.cli"]
+    cli = [sys.executable, "-m", "armd.clients.cli"]
 
     def process(cmd: list[str]) -> None:
         proc = subprocess.Popen([*cli, *cmd], cwd=ROOT, stdout=subprocess.PIPE, text=True)

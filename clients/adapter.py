@@ -42,14 +42,14 @@ import orjson
 import serial
 import zenoh
 
-import planning
-from planning import JointState
-from robots import ArmdError, BadRequest, PositionUnknown, Robot
-from service.protocol import encode
+from armd import planning
+from armd.planning import JointState
+from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot
+from armd.service.protocol import encode
 
 from .trajectory_message import MAX_BYTES, Command, motion, parse
 
-log = logging.getLogger("armd.adapter")
+log = logging.getLogger(__name__)
 JSON = zenoh.Encoding.APPLICATION_JSON
 START_TOL = 0.02  # [rad] how far a trajectory's first sample may be from where the arm is, at rest
 START_LAG = 0.1  # [s] ... plus this long at the arm's present speed (the planner's state was a little old)

@@ -14,8 +14,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-import robots
-from robots import ArmdError, Robot
+from armd import robots
+from armd.robots import ArmdError, Robot
 
 
 def _all_robots(robots_dir: str | None) -> dict[str, Robot]:
@@ -72,8 +72,8 @@ def _approach(value: str | None) -> object:
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
-    import planning
-    from planning.plot import plot_trajectory
+    from armd import planning
+    from armd.planning.plot import plot_trajectory
 
     arms = _all_robots(args.robots_dir)
     if args.robot not in arms:
@@ -119,7 +119,7 @@ def _open(conf: Any) -> Any:
     Zenoh cannot open is an error naming it, not a traceback."""
     import zenoh
 
-    from service.zconfig import exposure_warning
+    from armd.service.zconfig import exposure_warning
 
     warning = exposure_warning(conf)
     if warning:
@@ -133,7 +133,7 @@ def _open(conf: Any) -> Any:
 
 def _where(conf: Any) -> str:
     """Where a session on ``conf`` is: its connect endpoints, else its listen endpoints."""
-    from service.zconfig import endpoints
+    from armd.service.zconfig import endpoints
 
     return ", ".join(endpoints(conf, "connect") or endpoints(conf, "listen")) or "no endpoint"
 
@@ -141,9 +141,9 @@ def _where(conf: Any) -> str:
 def cmd_serve(args: argparse.Namespace) -> int:
     import logging
 
-    from service.protocol import Limits
-    from service.server import Service
-    from service.zconfig import network_config
+    from armd.service.protocol import Limits
+    from armd.service.server import Service
+    from armd.service.zconfig import network_config
 
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -162,7 +162,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise
     sims = []
     if args.sim:
-        from clients.sim import SimAdapter
+        from armd.clients.sim import SimAdapter
 
         sims = [SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale) for arm in arms.values()]
     extra = f", with simulated arms (x{args.time_scale:g} real time)" if args.sim else ""
@@ -190,7 +190,7 @@ def cmd_adapter(args: argparse.Namespace) -> int:
     arm = arms[args.robot]
     port = None
     if args.kind != "sim":
-        from clients.adapter import ControllerFault, open_port
+        from armd.clients.adapter import ControllerFault, open_port
 
         if not args.port:
             raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
@@ -241,7 +241,7 @@ def _join(args: argparse.Namespace, stop: Any) -> Any:
     by Zenoh itself (the retry settings of :func:`service.zconfig.network_config`)."""
     import zenoh
 
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     connect = args.connect or ([] if args.listen or args.config else ["tcp/127.0.0.1:7447"])
     zenoh.init_log_from_env_or("error")
@@ -261,16 +261,16 @@ def _join(args: argparse.Namespace, stop: Any) -> Any:
 
 def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: object = None) -> Any:
     if args.kind == "sim":
-        from clients.sim import SimAdapter
+        from armd.clients.sim import SimAdapter
 
         return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale,  # type: ignore[arg-type]
                           lag=args.lag)
     if args.kind == "ssc32":
-        from clients.ssc32 import SSC32Adapter
+        from armd.clients.ssc32 import SSC32Adapter
 
         return SSC32Adapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
                             state_dir=args.state_dir, serial_port=port)
-    from clients.grbl import GrblAdapter
+    from armd.clients.grbl import GrblAdapter
 
     return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
                        serial_port=port, assume_rest=args.assume_rest, home=args.home)
@@ -279,7 +279,7 @@ def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: o
 def cmd_router(args: argparse.Namespace) -> int:
     """A Zenoh router on the ``--config`` file's endpoints (TLS and all), ``--listen`` and
     ``--connect`` replacing them where given; with neither, on tcp/127.0.0.1:7447."""
-    from service.zconfig import endpoints, network_config
+    from armd.service.zconfig import endpoints, network_config
 
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config, mode="router")
     stop = _signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
@@ -296,7 +296,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
 
 def _client(args: argparse.Namespace) -> object:
-    from clients.client import ArmClient
+    from armd.clients.client import ArmClient
 
     return ArmClient(args.connect, config=args.config, prefix=args.prefix, timeout=args.timeout)
 
@@ -362,7 +362,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     with _client(args) as c:  # type: ignore[attr-defined]
         r = c.call(f"{args.robot}/plan", req)
         if args.plot:
-            from clients.client import TrajectoryReply
+            from armd.clients.client import TrajectoryReply
 
             c.plot(args.robot, TrajectoryReply.of(r), args.plot)
     _show(args, r, [("path", r["path"]), ("duration [s]", r["duration"]), ("samples", len(r["times"])),
@@ -420,7 +420,7 @@ def cmd_unlock(args: argparse.Namespace) -> int:
 
 
 def _limit_args(p: argparse.ArgumentParser) -> None:
-    from service.protocol import Limits
+    from armd.service.protocol import Limits
 
     d = Limits()
     g = p.add_argument_group("limits", "what one request may ask (docs/reliability.md)")
@@ -561,7 +561,7 @@ def build_parser() -> argparse.ArgumentParser:
     _client_args(p)
     p.set_defaults(func=cmd_unlock)
 
-    from clients import demo, view, workspace
+    from armd.clients import demo, view, workspace
 
     workspace.register(sub)
     demo.register(sub)

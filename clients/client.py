@@ -19,9 +19,9 @@ import orjson
 import zenoh
 from numpy.typing import NDArray
 
-from robots import ArmdError
-from service.protocol import encode
-from service.zconfig import client_config
+from armd.robots import ArmdError
+from armd.service.protocol import encode
+from armd.service.zconfig import client_config
 
 FloatArray = NDArray[np.float64]
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -240,8 +240,8 @@ class ArmClient:
     def plot(self, robot: str, trajectory: TrajectoryReply, out: str | Path, title: str | None = None) -> Path:
         """Write a PNG of a planned trajectory (position, velocity, acceleration, jerk per
         joint), the arm's limits, asked of the service, drawn as dashed lines."""
-        from planning.plot import plot_samples
-        from planning.trajectory import forward_jerk
+        from armd.planning.plot import plot_samples
+        from armd.planning.trajectory import forward_jerk
 
         joints = self.info(robot)["joints"]
         by_name = {j["name"]: j for j in joints}

@@ -24,9 +24,8 @@ from typing import Any
 
 import numpy as np
 
-import robots
-import solvers
-from robots import BadRequest, Robot
+from armd import robots, solvers
+from armd.robots import BadRequest, Robot
 
 from .client import ArmClient, ServiceError, TrajectoryReply
 
@@ -176,8 +175,8 @@ def print_row(row: Row) -> None:
 def cmd_demo(args: argparse.Namespace) -> int:
     import zenoh
 
-    from service.server import Service
-    from service.zconfig import free_endpoint, network_config
+    from armd.service.server import Service
+    from armd.service.zconfig import free_endpoint, network_config
 
     from .sim import SimAdapter
 

@@ -93,14 +93,14 @@ import numpy as np
 import serial
 import zenoh
 
-from planning import JointState, plan_stop
-from robots import ArmdError, BadRequest, Robot, Stepper
-from robots.units import parse_angle
+from armd.planning import JointState, plan_stop
+from armd.robots import ArmdError, BadRequest, Robot, Stepper
+from armd.robots.units import parse_angle
 
 from .adapter import START_TOL, ControllerFault, SerialAdapter, actuators_of
 from .trajectory_message import Command, FloatArray
 
-log = logging.getLogger("armd.grbl")
+log = logging.getLogger(__name__)
 
 RX_BUFFER = 128  # [bytes] GRBL's serial receive buffer
 PLANNER_BLOCKS = 15  # GRBL's look-ahead (BLOCK_BUFFER_SIZE 16, one kept free)

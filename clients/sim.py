@@ -12,8 +12,8 @@ import time
 import numpy as np
 import zenoh
 
-from planning import JointState
-from robots import Robot
+from armd.planning import JointState
+from armd.robots import Robot
 
 from .adapter import Adapter
 from .trajectory_message import Command

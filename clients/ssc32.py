@@ -56,13 +56,13 @@ import numpy as np
 import serial
 import zenoh
 
-from planning import JointState
-from robots import BadRequest, Robot, Servo
+from armd.planning import JointState
+from armd.robots import BadRequest, Robot, Servo
 
 from .adapter import ControllerFault, SerialAdapter, actuators_of
 from .trajectory_message import Command, FloatArray
 
-log = logging.getLogger("armd.ssc32")
+log = logging.getLogger(__name__)
 
 LINK_SHARE = 0.6  # of the link's bytes per second the stream may use
 MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: refused, the link is too slow)

@@ -21,8 +21,8 @@ import numpy as np
 import orjson
 from numpy.typing import NDArray
 
-import planning
-from robots import BadRequest, LimitError, Robot
+from armd import planning
+from armd.robots import BadRequest, LimitError, Robot
 
 FloatArray = NDArray[np.float64]
 

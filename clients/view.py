@@ -31,8 +31,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-import robots
-from robots import ArmdError, BadRequest, Robot
+from armd import robots
+from armd.robots import ArmdError, BadRequest, Robot
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -42,7 +42,7 @@ else:  # pragma: no cover
 if TYPE_CHECKING:
     import zenoh
 
-log = logging.getLogger("armd.view")
+log = logging.getLogger(__name__)
 FloatArray = NDArray[np.float64]
 
 HOST = "127.0.0.1"
@@ -611,8 +611,8 @@ def _arm(name: str, robots_dir: str | None) -> Robot:
 def cmd_view(args: argparse.Namespace) -> int:
     import zenoh
 
-    from clients.cli import _wait_for_signal
-    from service.zconfig import DEFAULT_ENDPOINT, client_config
+    from armd.clients.cli import _wait_for_signal
+    from armd.service.zconfig import DEFAULT_ENDPOINT, client_config
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     arm = _arm(args.robot, args.robots_dir)

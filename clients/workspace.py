@@ -21,9 +21,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-import robots
-import solvers
-from robots import BadRequest, Robot
+from armd import robots, solvers
+from armd.robots import BadRequest, Robot
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import ActuatorRangeError, CoupledLimitError, JointLimitError, LimitError, Robot
+from armd.robots import ActuatorRangeError, CoupledLimitError, JointLimitError, LimitError, Robot
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from solvers.jit import jit
+from armd.solvers.jit import jit
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]

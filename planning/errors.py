@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from robots import ArmdError
+from armd.robots import ArmdError
 
 
 class PlanRejected(ArmdError):

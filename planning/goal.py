@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import BadRequest, Robot
-from solvers import SensorReading, approach_pitch, solve_ik, target_point
+from armd.robots import BadRequest, Robot
+from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
 
 from .errors import PlanRejected
 

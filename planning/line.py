@@ -22,8 +22,8 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from robots import Robot
-from solvers import solve_ik, solve_ik_batch
+from armd.robots import Robot
+from armd.solvers import solve_ik, solve_ik_batch
 
 from .errors import PlanRejected, TrajectoryTooLong
 from .ruckig_path import RuckigPath, calculate, whole_cycles

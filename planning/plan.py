@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from robots import BadRequest, Robot
+from armd.robots import BadRequest, Robot
 
 from .errors import TrajectoryTooLong
 from .goal import goal_configuration, goal_point

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import Robot
+from armd.robots import Robot
 
 from .trajectory import Trajectory
 

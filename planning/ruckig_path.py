@@ -25,7 +25,7 @@ import numpy as np
 import ruckig
 from numpy.typing import NDArray
 
-from robots import ArmdError, BadRequest, Robot
+from armd.robots import ArmdError, BadRequest, Robot
 
 from .compiled import evaluate
 from .state import JointState

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import BadRequest, Robot
+from armd.robots import BadRequest, Robot
 
 FloatArray = NDArray[np.float64]
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import Robot
+from armd.robots import Robot
 
 from .checks import POSITION_TOL, RATE_TOL, actuator_commands, check_samples
 from .compiled import all_clear

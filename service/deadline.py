@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import time
 
-from robots import ArmdError
+from armd.robots import ArmdError
 
 
 class DeadlineExceeded(ArmdError):

@@ -19,10 +19,9 @@ from typing import Any
 
 import numpy as np
 
-import planning
-import solvers
-from planning import JointState
-from robots import ArmdError, BadRequest, PositionUnknown, Robot
+from armd import planning, solvers
+from armd.planning import JointState
+from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot
 
 from .deadline import Deadline
 from .protocol import FK, GRIPPER, IK_BATCH, IK_ONE, MOVE, NOTHING, PLAN, PROTOCOL_VERSION, Limits, NoAdapter, check

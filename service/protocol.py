@@ -20,7 +20,7 @@ from typing import Any
 
 import orjson
 
-from robots import ArmdError, BadRequest
+from armd.robots import ArmdError, BadRequest
 
 PROTOCOL_VERSION = 1
 VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper")

@@ -45,8 +45,8 @@ import numpy as np
 import orjson
 import zenoh
 
-from planning import JointState
-from robots import ArmdError, Robot, UnknownRobot
+from armd.planning import JointState
+from armd.robots import ArmdError, Robot, UnknownRobot
 
 from .deadline import Deadline, DeadlineExceeded
 from .handlers import Handlers
@@ -63,7 +63,7 @@ from .protocol import (
 )
 from .state import StateBook
 
-log = logging.getLogger("armd.service")
+log = logging.getLogger(__name__)
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
 JSON = zenoh.Encoding.APPLICATION_JSON
 Route = tuple[Robot | None, str]  # (arm, verb); (None, "robots") for the service-wide verb
@@ -462,8 +462,7 @@ def _attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:
 
 
 def _warm_arm(arm: Robot) -> None:
-    import planning
-    import solvers
+    from armd import planning, solvers
 
     home = arm.fk(arm.neutral)
     far = 10.0 * home + 1.0  # unreachable: the closest-point code and the arm's atlas

@@ -11,8 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planning import JointState, Trajectory
-from robots import Robot
+from armd.planning import JointState, Trajectory
+from armd.robots import Robot
 
 STALE_AFTER = 1.0  # [s] an adapter's state older than this is not trusted
 

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import BadRequest, Robot
+from armd.robots import BadRequest, Robot
 
 from .analytic import EXACT, NONE, solve_many
 from .geometric import BRANCH_NAMES

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import Robot
+from armd.robots import Robot
 
 from .jit import jit
 

@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import BadRequest, Robot
+from armd.robots import BadRequest, Robot
 
 from .analytic import EXACT, NONE, pack, packed_outputs, solve_packed
 from .closest import closest_family

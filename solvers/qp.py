@@ -27,7 +27,7 @@ import numpy as np
 import pinocchio as pin
 from numpy.typing import NDArray
 
-from robots import ArmdError, Robot
+from armd.robots import ArmdError, Robot
 
 FloatArray = NDArray[np.float64]
 

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import BadRequest, Robot
+from armd.robots import BadRequest, Robot
 
 FloatArray = NDArray[np.float64]
 _FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check

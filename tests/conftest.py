@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-import robots
+from armd import robots
 
 
 @pytest.fixture
@@ -36,13 +36,13 @@ from collections.abc import Iterator  # noqa: E402
 
 import zenoh  # noqa: E402
 
-from service.zconfig import free_port  # noqa: E402 (the tests import it from here too)
+from armd.service.zconfig import free_port  # noqa: E402 (the tests import it from here too)
 
 
 @pytest.fixture(scope="module")
 def router() -> Iterator[str]:
     """A Zenoh router in this process, listening on a free loopback port: its endpoint."""
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = zenoh.open(network_config(listen=[endpoint], mode="router"))
@@ -53,8 +53,8 @@ def router() -> Iterator[str]:
 @pytest.fixture(scope="module")
 def service(router: str) -> Iterator[object]:
     """The armd service, on its own peer session joined to the router, serving the catalogue."""
-    from service.server import Service
-    from service.zconfig import network_config
+    from armd.service.server import Service
+    from armd.service.zconfig import network_config
 
     session = zenoh.open(network_config(connect=[router]))
     svc = Service(session, {n: robots.load(n) for n in robots.names()})
@@ -65,7 +65,7 @@ def service(router: str) -> Iterator[object]:
 
 @pytest.fixture(scope="module")
 def client(router: str, service: object) -> Iterator[object]:
-    from clients import ArmClient
+    from armd.clients import ArmClient
 
     with ArmClient(router, timeout=10.0) as c:
         yield c
@@ -80,7 +80,7 @@ import time  # noqa: E402
 
 @pytest.fixture
 def adapter_session(router: str) -> Iterator[zenoh.Session]:
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     session = zenoh.open(network_config(connect=[router]))
     yield session

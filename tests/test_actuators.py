@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-import robots
+from armd import robots
 from tests.test_fk import random_in_limits
 
 

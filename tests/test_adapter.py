@@ -13,12 +13,11 @@ import orjson
 import pytest
 import zenoh
 
-import planning
-import robots
-from clients import ArmClient
-from clients.sim import SimAdapter
-from clients.trajectory_message import MAX_BYTES
-from service.zconfig import network_config
+from armd import planning, robots
+from armd.clients import ArmClient
+from armd.clients.sim import SimAdapter
+from armd.clients.trajectory_message import MAX_BYTES
+from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 
 ARM = "insomniac"
@@ -173,7 +172,7 @@ def test_the_simulator_has_nothing_to_unlock(sim: Any) -> None:
 
 def test_an_adapter_finishes_what_it_accepted_when_the_service_dies(router: str, sim: Any) -> None:
     """The service goes away mid-move: the adapter needs nothing of it to finish the move."""
-    from service.server import Service
+    from armd.service.server import Service
 
     adapter, _, events = sim
     arm = adapter.robot

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-from clients import ArmClient, ServiceError
-from clients.adapter import ControllerFault
-from clients.emulators.grbl import GrblEmulator
-from clients.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_motion, span
-from clients.grbl import GrblAdapter
+from armd import robots
+from armd.clients import ArmClient, ServiceError
+from armd.clients.adapter import ControllerFault
+from armd.clients.emulators.grbl import GrblEmulator
+from armd.clients.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_motion, span
+from armd.clients.grbl import GrblAdapter
 from tests.conftest import collect, wait_for
 
 ARM = "gupta3"

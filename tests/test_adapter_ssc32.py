@@ -16,14 +16,14 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-from clients import ArmClient, ServiceError
-from clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
-from clients.emulators.measure import ratios as _ratios
-from clients.emulators.process import EmulatorProcess
-from clients.emulators.ssc32 import SSC32Emulator
-from clients.ssc32 import SSC32Adapter
-from service.zconfig import network_config
+from armd import robots
+from armd.clients import ArmClient, ServiceError
+from armd.clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
+from armd.clients.emulators.measure import ratios as _ratios
+from armd.clients.emulators.process import EmulatorProcess
+from armd.clients.emulators.ssc32 import SSC32Emulator
+from armd.clients.ssc32 import SSC32Adapter
+from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
 
@@ -171,8 +171,8 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, ser
 def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Session) -> None:
     """Servo arms to the GRBL adapter, stepper arms to the SSC-32's: refused before any port
     is opened, naming what the adapter drives."""
-    from clients.grbl import GrblAdapter
-    from robots import BadRequest
+    from armd.clients.grbl import GrblAdapter
+    from armd.robots import BadRequest
 
     with pytest.raises(BadRequest) as e:
         SSC32Adapter(adapter_session, robots.load("gupta3"), "/dev/nonexistent-ssc32")
@@ -325,7 +325,7 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmC
     arm = robots.load("insomniac")
     with EmulatorProcess(SSC32Emulator) as emu:  # (a board has its own CPU: not this busy interpreter's)
         env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
+        proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
                                  emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
                                 stderr=(tmp_path / "adapter.log").open("w"), text=True)  # (a full pipe would stall it)
         try:

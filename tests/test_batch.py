@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-import robots
-from solvers import solve_ik, solve_ik_batch
+from armd import robots
+from armd.solvers import solve_ik, solve_ik_batch
 from tests.test_fk import random_in_limits
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import robots
+from armd import robots
 
 
 def test_load_is_cached_and_unknown_names_list_the_catalogue() -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 
 def armd(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args], capture_output=True, text=True,
                           cwd=Path(__file__).resolve().parent.parent, timeout=120)
 
 
@@ -46,11 +46,11 @@ def test_an_adapter_waits_for_a_router_and_says_so() -> None:
     import signal
     import time
 
-    from clients.emulators.ssc32 import SSC32Emulator
-    from service.zconfig import free_endpoint
+    from armd.clients.emulators.ssc32 import SSC32Emulator
+    from armd.service.zconfig import free_endpoint
 
     with SSC32Emulator() as emu:
-        proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "adapter", "ssc32", "insomniac", "--port",
+        proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
                                  emu.port, "--connect", free_endpoint()], cwd=Path(__file__).resolve().parent.parent,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         time.sleep(4.0)
@@ -64,9 +64,9 @@ def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> N
     """`armd estop` and `armd unlock` put straight on the adapter's keys: no service runs here."""
     import zenoh
 
-    import robots
-    from clients.sim import SimAdapter
-    from service.zconfig import free_endpoint, network_config
+    from armd import robots
+    from armd.clients.sim import SimAdapter
+    from armd.service.zconfig import free_endpoint, network_config
 
     endpoint = free_endpoint()
     router = zenoh.open(network_config(listen=[endpoint], mode="router"))

@@ -14,10 +14,10 @@ import math
 import numpy as np
 import pytest
 
-import robots
-from solvers import solve_ik
-from solvers.closest import closest_box, closest_family, refine_family
-from solvers.ik import _arm
+from armd import robots
+from armd.solvers import solve_ik
+from armd.solvers.closest import closest_box, closest_family, refine_family
+from armd.solvers.ik import _arm
 
 ARM = robots.load("desk4")
 N_TARGETS = 2000

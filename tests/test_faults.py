@@ -14,13 +14,12 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-import solvers
-from clients import ArmClient, NoReply
-from clients.sim import SimAdapter
-from service.protocol import Limits
-from service.server import Service
-from service.zconfig import network_config
+from armd import robots, solvers
+from armd.clients import ArmClient, NoReply
+from armd.clients.sim import SimAdapter
+from armd.service.protocol import Limits
+from armd.service.server import Service
+from armd.service.zconfig import network_config
 from tests.conftest import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -106,7 +105,7 @@ def test_client_timeout_is_a_typed_error() -> None:
 
 LEAVER = """
 import sys, zenoh
-from service.zconfig import client_config
+from armd.service.zconfig import client_config
 session = zenoh.open(client_config([sys.argv[1]]))
 # until the router has told this new session of the service's queryable, a get finds no route and
 # is sent nowhere: ask something quick first

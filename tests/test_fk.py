@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-import robots
+from armd import robots
 
 N = 3000
 c, s = math.cos, math.sin

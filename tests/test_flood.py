@@ -10,10 +10,10 @@ import sys
 import time
 from pathlib import Path
 
-import robots
-from clients import ArmClient
-from clients.sim import SimAdapter
-from service.server import Service
+from armd import robots
+from armd.clients import ArmClient
+from armd.clients.sim import SimAdapter
+from armd.service.server import Service
 from tests.conftest import wait_for
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -13,9 +13,8 @@ from typing import Any
 import numpy as np
 from hypothesis import given, settings
 
-import robots
-import solvers
-from clients import ArmClient
+from armd import robots, solvers
+from armd.clients import ArmClient
 from tests.fuzzing import Mutation, bad_requests, mutations
 
 N = 2000  # the suite's share; bench/fuzz.py runs 10,000 and more

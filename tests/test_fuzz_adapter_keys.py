@@ -15,10 +15,10 @@ import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import robots
-from clients import ArmClient
-from clients.sim import SimAdapter
-from service.zconfig import network_config
+from armd import robots
+from armd.clients import ArmClient
+from armd.clients.sim import SimAdapter
+from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 
 ARM = "desk4"

@@ -9,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import robots
-import solvers
-from solvers import SensorReading, solve_ik
+from armd import robots, solvers
+from armd.solvers import SensorReading, solve_ik
 from tests.test_fk import random_in_limits
 
 ARMS = ["insomniac", "sg5ut", "gupta3", "desk4"]
@@ -156,8 +155,8 @@ def test_unreachable_targets_get_the_closest_point(name: str) -> None:
 def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -> None:
     """The enumerated closest point answers every catalogue arm (desk4 too, with its offset pivot
     and coupled limit: tests/test_closest.py), and a many-start iteration finds nothing nearer."""
-    from solvers.closest import closest_box, refine_family
-    from solvers.ik import _arm
+    from armd.solvers.closest import closest_box, refine_family
+    from armd.solvers.ik import _arm
 
     arm = robots.load(name)
     a = _arm(arm)

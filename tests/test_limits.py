@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import robots
+from armd import robots
 
 
 def test_desk4_coupled_limit_rejects_what_it_must() -> None:

@@ -5,10 +5,10 @@ measured by the benchmark itself (docs/benchmarks.md), never asserted here."""
 
 from __future__ import annotations
 
-import robots
+from armd import robots
+from armd.clients.sim import SimAdapter
+from armd.service.server import Service
 from bench.load import STOP_ARM, run
-from clients.sim import SimAdapter
-from service.server import Service
 from tests.conftest import wait_for
 
 

@@ -9,9 +9,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import planning
-import robots
-from planning import JointState, PlanRejected, plan, plan_stop
+from armd import planning, robots
+from armd.planning import JointState, PlanRejected, plan, plan_stop
 
 ARMS = ["insomniac", "sg5ut", "gupta3", "desk4"]
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -256,8 +255,8 @@ def test_trajectory_to_dict_is_json_ready() -> None:
 def test_compiled_gate_never_passes_what_the_checks_refuse(name: str) -> None:
     """``build``'s compiled fast path against the exact checks: every kind of violation, just
     over and just under each tolerance, gives the same verdict (and the same commands)."""
-    from planning.checks import POSITION_TOL, RATE_TOL
-    from planning.trajectory import build
+    from armd.planning.checks import POSITION_TOL, RATE_TOL
+    from armd.planning.trajectory import build
 
     arm = robots.load(name)
     lim = arm.limits

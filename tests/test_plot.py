@@ -8,9 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-import planning
-import robots
-from planning.plot import plot_trajectory
+from armd import planning, robots
+from armd.planning.plot import plot_trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -29,7 +28,7 @@ def test_plot_writes_a_png_with_content(tmp_path: Path) -> None:
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args], capture_output=True, text=True, cwd=ROOT,
                           timeout=300)
 
 
@@ -55,7 +54,7 @@ def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path
     as the planner's own plot of the same plan."""
     import matplotlib.image as mpimg
 
-    from clients import ArmClient
+    from armd.clients import ArmClient
 
     assert isinstance(client, ArmClient)
     arm = robots.load("sg5ut")
@@ -69,7 +68,7 @@ def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path
 
 
 def test_cli_plan_plot(client: object, router: str, tmp_path: Path, capsys: object) -> None:
-    from clients.cli import main
+    from armd.clients.cli import main
 
     out = tmp_path / "plan.png"
     assert main(["plan", "insomniac", "--target", "0.25", "0.05", "0.2", "--start", "0", "1.2", "-1.2", "0", "0",

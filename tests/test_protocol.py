@@ -14,8 +14,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from robots import BadRequest
-from service.protocol import Limits, _depth, allowed, decode
+from armd.robots import BadRequest
+from armd.service.protocol import Limits, _depth, allowed, decode
 
 scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=False, allow_infinity=False) \
     | st.text(alphabet="[]{}\"\\ ab", max_size=6)

@@ -10,9 +10,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-import robots
-from clients import ArmClient
-from clients.sim import SimAdapter
+from armd import robots
+from armd.clients import ArmClient
+from armd.clients.sim import SimAdapter
 
 DOC = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
 EXAMPLES = re.findall(r"```json request (\S+)\n(.*?)```", DOC, flags=re.S)
@@ -30,7 +30,7 @@ def test_json_blocks_parse(block: str) -> None:
 
 
 def test_examples_work(router: str, service: object, client: ArmClient) -> None:
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     session = zenoh.open(network_config(connect=[router]))
     sims = [SimAdapter(session, robots.load(n), time_scale=20.0) for n in robots.names()]
@@ -52,7 +52,7 @@ def test_examples_work(router: str, service: object, client: ArmClient) -> None:
 def test_the_schemas_name_the_fields_the_code_takes() -> None:
     """Each verb's JSON Schema in the doc has the top-level fields of the verb's shape in
     service/protocol.py, no more, no fewer (the envelope aside)."""
-    from service.protocol import ANY, FK, IK_BATCH, IK_ONE, PLAN
+    from armd.service.protocol import ANY, FK, IK_BATCH, IK_ONE, PLAN
 
     shapes = {"q": FK, "target": IK_ONE, "targets": IK_BATCH, "goal": PLAN}
     seen = set()
@@ -69,8 +69,8 @@ def test_the_schemas_name_the_fields_the_code_takes() -> None:
 
 
 def test_the_sizes_and_the_speed_floor_are_the_codes() -> None:
-    from planning.plan import MIN_SPEED
-    from service.protocol import MAX_METRES, MAX_RADIANS, MAX_RATE
+    from armd.planning.plan import MIN_SPEED
+    from armd.service.protocol import MAX_METRES, MAX_RADIANS, MAX_RATE
 
     rows = dict(re.findall(r"^ *\| (a Cartesian coordinate|a joint value|a start state's)[^|]*\| (\S+) \|$", DOC, re.M))
     assert {k: float(v) for k, v in rows.items()} == {"a Cartesian coordinate": MAX_METRES,

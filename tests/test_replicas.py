@@ -7,10 +7,10 @@ import time
 
 import zenoh
 
-import robots
-from clients import ArmClient
-from service.server import Service
-from service.zconfig import network_config
+from armd import robots
+from armd.clients import ArmClient
+from armd.service.server import Service
+from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 
 

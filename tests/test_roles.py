@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from service.zconfig import network_config
+from armd.service.zconfig import network_config
 from tests.test_security import secured  # noqa: F401 (the fixture: a router with the ACL, and each role's config)
 
 SETTLE = 0.4  # [s] for a declaration to reach the router and the other sessions

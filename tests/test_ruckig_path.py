@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 import ruckig
 
-import planning
-import robots
-from planning import JointState
-from planning.ruckig_path import Limits, RuckigPath, _segment, joint_path, stop_path
+from armd import planning, robots
+from armd.planning import JointState
+from armd.planning.ruckig_path import Limits, RuckigPath, _segment, joint_path, stop_path
 from tests.test_fk import random_in_limits
 
 

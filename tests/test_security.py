@@ -14,12 +14,11 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-import solvers
-from clients import ArmClient, NoReply
-from clients.sim import SimAdapter
-from service.server import Service
-from service.zconfig import network_config
+from armd import robots, solvers
+from armd.clients import ArmClient, NoReply
+from armd.clients.sim import SimAdapter
+from armd.service.server import Service
+from armd.service.zconfig import network_config
 from tests.conftest import free_port, wait_for
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "security"

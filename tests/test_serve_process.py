@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import robots
-from clients import ArmClient, ServiceError
+from armd import robots
+from armd.clients import ArmClient, ServiceError
 from tests.conftest import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -24,7 +24,7 @@ LIMITS = ["--max-batch", "50", "--max-payload", "200000", "--max-samples", "5000
 @pytest.fixture(scope="module")
 def served() -> Iterator[str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "clients.cli", "serve", "--listen", endpoint, "--sim",
+    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint, "--sim",
                              "--time-scale", "5", *LIMITS], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     assert proc.stdout is not None
@@ -41,7 +41,7 @@ def served() -> Iterator[str]:
 
 
 def cli(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clients.cli", *args, "--connect", endpoint], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args, "--connect", endpoint], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -77,7 +77,7 @@ def test_cli_against_the_process(served: str) -> None:
 
 
 def test_cli_without_a_service() -> None:
-    r = subprocess.run([sys.executable, "-m", "clients.cli", "robots", "--connect",
+    r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "robots", "--connect",
                         f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
@@ -105,6 +105,6 @@ def test_operator_limits_from_the_command_line(served: str) -> None:
 
 
 def test_serve_refuses_a_nonsense_limit() -> None:
-    r = subprocess.run([sys.executable, "-m", "clients.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
+    r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
                         "--deadline", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "deadline must be" in r.stderr and "Traceback" not in r.stderr

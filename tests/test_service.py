@@ -11,11 +11,10 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-import solvers
-from clients import ArmClient, ServiceError
-from clients.sim import SimAdapter
-from robots import ArmdError
+from armd import robots, solvers
+from armd.clients import ArmClient, ServiceError
+from armd.clients.sim import SimAdapter
+from armd.robots import ArmdError
 from tests.conftest import collect
 from tests.test_fk import random_in_limits
 
@@ -157,13 +156,13 @@ def test_counters_and_the_debug_line(client: ArmClient, service: object, caplog:
     after = service.stats()  # type: ignore[attr-defined]
     assert after["served"] - before["served"] == 3 and after["errors"] - before["errors"] == 2
     assert after["in_flight"] == 0
-    lines = [r.getMessage() for r in caplog.records if r.name == "armd.service"]
+    lines = [r.getMessage() for r in caplog.records if r.name == "armd.service.server"]
     assert any(m.startswith("armd/gupta3/fk ok in ") and m.endswith(" ms") for m in lines), lines
     assert any(m.startswith("armd/gupta3/ik error in ") for m in lines), lines
 
 
 def test_arm_client_keeps_a_querier_per_key(router: str, service: object, monkeypatch: pytest.MonkeyPatch) -> None:
-    import clients.client as module
+    import armd.clients.client as module
 
     with ArmClient(router, timeout=10.0, deadline=5.0) as c:
         req = {"q": [0, 1, -1]}
@@ -233,7 +232,7 @@ def _in_threads(worker: Callable[[int], None], n: int) -> None:
 
 @pytest.fixture(scope="module")
 def sim(router: str, service: object) -> Iterator[SimAdapter]:
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     session = zenoh.open(network_config(connect=[router]))
     adapter = SimAdapter(session, robots.load("gupta3"), time_scale=5.0)
@@ -299,7 +298,7 @@ def test_stop_mid_move(client: ArmClient, sim: SimAdapter) -> None:
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "desk4"])
 def test_every_arm_moves_through_the_simulator(client: ArmClient, router: str, service: object, name: str) -> None:
-    from service.zconfig import network_config
+    from armd.service.zconfig import network_config
 
     arm = robots.load(name)
     session = zenoh.open(network_config(connect=[router]))
@@ -323,11 +322,11 @@ def test_a_stop_is_never_refused_from_a_state_a_hair_outside_the_limits() -> Non
     stepper's whole steps, a servo's rounding): the stop goes out on estop and is answered, with
     a rest pose inside the limits; ``limit`` is not an answer to a stop. A move refuses to plan
     from there, as it should."""
-    from planning import JointState
-    from service.deadline import Deadline
-    from service.handlers import Handlers
-    from service.protocol import Limits
-    from service.state import StateBook
+    from armd.planning import JointState
+    from armd.service.deadline import Deadline
+    from armd.service.handlers import Handlers
+    from armd.service.protocol import Limits
+    from armd.service.state import StateBook
 
     arm = robots.load("gupta3")
     book = StateBook()
@@ -350,11 +349,11 @@ def test_a_stop_is_never_refused_from_a_state_a_hair_outside_the_limits() -> Non
 
 
 def test_move_is_refused_while_the_adapter_does_not_know_where_the_arm_is() -> None:
-    from planning import JointState
-    from service.deadline import Deadline
-    from service.handlers import Handlers
-    from service.protocol import Limits
-    from service.state import StateBook
+    from armd.planning import JointState
+    from armd.service.deadline import Deadline
+    from armd.service.handlers import Handlers
+    from armd.service.protocol import Limits
+    from armd.service.state import StateBook
 
     arm = robots.load("gupta3")
     book = StateBook()

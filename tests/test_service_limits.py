@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-from clients import ArmClient, ServiceError
-from clients.sim import SimAdapter
-from robots import BadRequest
-from service.protocol import Limits
-from service.server import Service
-from service.zconfig import network_config
+from armd import robots
+from armd.clients import ArmClient, ServiceError
+from armd.clients.sim import SimAdapter
+from armd.robots import BadRequest
+from armd.service.protocol import Limits
+from armd.service.server import Service
+from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 
 ARM = "gupta3"

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import zenoh
 
-import robots
-from clients import ArmClient, ServiceError
-from clients.sim import SimAdapter
-from service.server import ACCEPT_TIMEOUT
-from service.zconfig import network_config
+from armd import robots
+from armd.clients import ArmClient, ServiceError
+from armd.clients.sim import SimAdapter
+from armd.service.server import ACCEPT_TIMEOUT
+from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
 ARM = "desk4"

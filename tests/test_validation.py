@@ -9,11 +9,11 @@ from typing import Any
 
 import pytest
 
-from clients import ArmClient
-from planning.plan import PATHS
-from robots import BadRequest
-from service.protocol import APPROACH_WORDS, FK, IK_ONE, PATH_WORDS, PLAN, check, real
-from solvers.target import APPROACHES
+from armd.clients import ArmClient
+from armd.planning.plan import PATHS
+from armd.robots import BadRequest
+from armd.service.protocol import APPROACH_WORDS, FK, IK_ONE, PATH_WORDS, PLAN, check, real
+from armd.solvers.target import APPROACHES
 
 Q = [0.0, 1.2, -1.0, 0.0, 0.0]  # insomniac, within its limits
 NEUTRAL = [0.0, 1.5707963267948966, -1.5707963267948966, 0.0, 0.0]

@@ -26,12 +26,11 @@ from conftest import free_port, wait_for
 from matplotlib.image import imread
 from numpy.typing import NDArray
 
-import planning
-import robots
-from clients.sim import SimAdapter
-from clients.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ViewerError, ZenohFeed
-from service.protocol import encode
-from service.zconfig import client_config
+from armd import planning, robots
+from armd.clients.sim import SimAdapter
+from armd.clients.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ViewerError, ZenohFeed
+from armd.service.protocol import encode
+from armd.service.zconfig import client_config
 
 ROOT = Path(__file__).resolve().parent.parent
 W, H = 800, 600
@@ -247,7 +246,7 @@ def test_bad_input_is_refused(insomniac_view: tuple[ArmView, ZenohFeed]) -> None
 
 
 def armd_view(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "clients.cli", "view", *args], cwd=ROOT, text=True,
+    return subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "view", *args], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 

@@ -12,11 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import robots
-import solvers
-from clients import workspace
-from clients.cli import main
-from clients.workspace import AREA_A, AREA_B, BACKGROUND, Drawn
+from armd import robots, solvers
+from armd.clients import workspace
+from armd.clients.cli import main
+from armd.clients.workspace import AREA_A, AREA_B, BACKGROUND, Drawn
 
 ARMS = ["insomniac", "sg5ut", "gupta3", "desk4"]
 COLOURS = {"none": BACKGROUND, "A": AREA_A, "B": AREA_B}

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from service.zconfig import (
+from armd.service.zconfig import (
     DEFAULT_ENDPOINT,
     endpoints,
     exposure_warning,

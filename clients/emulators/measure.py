@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from robots import Robot, Servo, Stepper
+from armd.robots import Robot, Servo, Stepper
 
 from .grbl import GrblEmulator
 from .ssc32 import SSC32Emulator
