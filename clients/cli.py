@@ -190,7 +190,8 @@ def cmd_adapter(args: argparse.Namespace) -> int:
     arm = arms[args.robot]
     port = None
     if args.kind != "sim":
-        from armd.clients.adapter import ControllerFault, open_port
+        from armd.clients.adapter import ControllerFault
+        from armd.clients.serial_port import open_port  # (pyserial: the hardware extra; main() says so)
 
         if not args.port:
             raise robots.BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
@@ -580,6 +581,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # `armd catalogue | head`: the reader left; stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except ModuleNotFoundError as e:  # an extra this command needs is not installed
+        extra = EXTRAS.get((e.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"armd: error: this command needs {e.name}: pip install 'armd[{extra}]'", file=sys.stderr)
+        return 2
+
+
+EXTRAS = {"serial": "hardware", "matplotlib": "view", "meshcat": "view"}  # a module: the extra that installs it
 
 
 if __name__ == "__main__":

@@ -59,7 +59,8 @@ import zenoh
 from armd.planning import JointState
 from armd.robots import BadRequest, Robot, Servo
 
-from .adapter import ControllerFault, SerialAdapter, actuators_of
+from .adapter import ControllerFault, actuators_of
+from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 
 log = logging.getLogger(__name__)

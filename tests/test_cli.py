@@ -84,3 +84,23 @@ def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> N
         adapter.close()
         session.close()
         router.close()
+
+
+BLOCK_EXTRAS = "import sys; sys.modules.update(serial=None, matplotlib=None, meshcat=None); "
+
+
+def test_the_service_and_the_simulated_arms_need_no_extra() -> None:
+    """pyserial (hardware), matplotlib and meshcat (view) are extras: the service, the client,
+    the simulated arms and the command line import without them."""
+    code = BLOCK_EXTRAS + ("import armd.service.server, armd.clients.sim, armd.clients.cli, armd.clients; "
+                           "print('ok')")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_a_command_whose_extra_is_missing_says_which_to_install() -> None:
+    code = BLOCK_EXTRAS + ("from armd.clients.cli import main; "
+                           "sys.exit(main(['adapter', 'ssc32', 'insomniac', '--port', '/dev/null']))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "pip install 'armd[hardware]'" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1, r.stderr
