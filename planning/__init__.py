@@ -1,6 +1,6 @@
 """armd's planning layer: jerk-limited trajectories (Ruckig), Cartesian lines, the safety gate.
 
->>> import robots, planning
+>>> from armd import robots, planning
 >>> arm = robots.load("gupta3")
 >>> traj = planning.plan(arm, arm.neutral, [0.5, 1.0, -1.2])
 >>> traj.rate_hz, bool(abs(traj.duration * traj.rate_hz - round(traj.duration * traj.rate_hz)) < 1e-9)

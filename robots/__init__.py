@@ -1,6 +1,6 @@
 """armd's robot catalogue: arm models, limits, actuator maps and forward kinematics.
 
->>> import robots
+>>> from armd import robots
 >>> robots.names()
 ['desk4', 'gupta3', 'insomniac', 'sg5ut']
 >>> arm = robots.load("gupta3")
@@ -8,8 +8,10 @@
 [0.28, 0.0, 0.0]
 """
 
-from .actuators import ActuatorMap, Gripper, Servo, Stepper
-from .catalogue import CATALOGUE_DIR, load, load_dir, load_folder, names
+from typing import TYPE_CHECKING, Any
+
+# The errors are imported at once (light: the client library and the protocol use them); the
+# rest when first asked for (the catalogue loads Pinocchio: 0.3 s that a client does not need).
 from .errors import (
     ActuatorMapError,
     ActuatorRangeError,
@@ -22,10 +24,36 @@ from .errors import (
     RobotFileError,
     UnknownRobot,
 )
-from .geometry import Geometry
-from .limits import CoupledLimit, JointLimits
-from .robot import Robot, ToolPose
-from .sensors import RangeSensor
+
+if TYPE_CHECKING:
+    from .actuators import ActuatorMap, Gripper, Servo, Stepper
+    from .catalogue import CATALOGUE_DIR, load, load_dir, load_folder, names
+    from .geometry import Geometry
+    from .limits import CoupledLimit, JointLimits
+    from .robot import Robot, ToolPose
+    from .sensors import RangeSensor
+
+_LAZY = {
+    **dict.fromkeys(("ActuatorMap", "Gripper", "Servo", "Stepper"), ".actuators"),
+    **dict.fromkeys(("CATALOGUE_DIR", "load", "load_dir", "load_folder", "names"), ".catalogue"),
+    "Geometry": ".geometry",
+    **dict.fromkeys(("CoupledLimit", "JointLimits"), ".limits"),
+    **dict.fromkeys(("Robot", "ToolPose"), ".robot"),
+    "RangeSensor": ".sensors",
+}
+
+
+def __getattr__(name: str) -> Any:
+    """The package's names beyond the errors, imported when first used (PEP 562)."""
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
 
 __all__ = [
     "CATALOGUE_DIR",

@@ -1,6 +1,6 @@
 """armd's solvers: closed-form geometric IK seeds refined by a QP with hard joint limits.
 
->>> import robots, solvers
+>>> from armd import robots, solvers
 >>> arm = robots.load("insomniac")
 >>> r = solvers.solve_ik(arm, [0.25, 0.05, 0.12], approach="perpendicular")
 >>> r.status, r.position_error < 1e-9

@@ -77,3 +77,13 @@ def test_one_package_at_the_top_of_site_packages(tmp_path: Path) -> None:
     out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True)  # (not the repo)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[false, false, false, false, false]", out.stdout
+
+
+def test_the_client_library_loads_no_pinocchio(tmp_path: Path) -> None:
+    """A client needs Zenoh, orjson and NumPy: importing armd.clients loads no Pinocchio, no
+    Numba, no Ruckig (the models, the solver's compiled code and the planner are the service's)."""
+    script = ("import sys, json; import armd.clients; "
+              "print(json.dumps(sorted(m for m in ('pinocchio', 'numba', 'ruckig') if m in sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]", out.stdout
