@@ -415,7 +415,7 @@ def cmd_unlock(args: argparse.Namespace) -> int:
         return 1
     if answer["event"] != "unlocked":
         print(f"armd: error: {answer.get('reason', answer)}", file=sys.stderr)
-        return 2
+        return 1
     print(f"{args.robot}: unlocked ({how})")
     return 0
 
@@ -575,9 +575,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except ArmdError as e:
+    except ArmdError as e:  # what armd says is wrong: one line, exit 1 (argparse's usage errors exit 2)
         print(f"armd: error: {e.message}", file=sys.stderr)
-        return 2
+        return 1
     except BrokenPipeError:  # `armd catalogue | head`: the reader left; stop quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
@@ -586,7 +586,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if extra is None:
             raise
         print(f"armd: error: this command needs {e.name}: pip install 'armd[{extra}]'", file=sys.stderr)
-        return 2
+        return 1
 
 
 EXTRAS = {"serial": "hardware", "matplotlib": "view", "meshcat": "view"}  # a module: the extra that installs it

@@ -30,7 +30,7 @@ def test_catalogue_json() -> None:
 
 def test_bad_robots_dir_is_a_clear_error(tmp_path: Path) -> None:
     out = armd("catalogue", "--robots-dir", str(tmp_path / "nowhere"))
-    assert out.returncode == 2
+    assert out.returncode == 1
     assert "armd: error:" in out.stderr and "is not a folder" in out.stderr
     assert "Traceback" not in out.stderr
 
@@ -77,7 +77,7 @@ def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> N
         assert out.returncode == 0, out.stderr
         assert f"adapter {adapter.id} (sim): stopping" in out.stdout
         out = armd("unlock", "gupta3", "--assume-rest", "--connect", endpoint, "--wait", "5")
-        assert out.returncode == 2 and "nothing to unlock" in out.stderr  # the simulator always knows
+        assert out.returncode == 1 and "nothing to unlock" in out.stderr  # the simulator always knows
         out = armd("estop", "desk4", "--connect", endpoint, "--wait", "0.3")
         assert out.returncode == 1 and "no adapter of desk4 acknowledged" in out.stderr
     finally:
@@ -102,5 +102,14 @@ def test_a_command_whose_extra_is_missing_says_which_to_install() -> None:
     code = BLOCK_EXTRAS + ("from armd.clients.cli import main; "
                            "sys.exit(main(['adapter', 'ssc32', 'insomniac', '--port', '/dev/null']))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
-    assert r.returncode == 2 and "pip install 'armd[hardware]'" in r.stderr, r.stderr
+    assert r.returncode == 1 and "pip install 'armd[hardware]'" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
+
+
+def test_usage_errors_exit_2_and_armds_errors_exit_1() -> None:
+    """argparse's usage errors (an unknown verb, a missing argument) exit 2; what armd finds wrong
+    (an unknown robot) exits 1, in one line."""
+    assert armd("nosuchverb").returncode == 2
+    assert armd("fk").returncode == 2
+    out = armd("catalogue", "--robots-dir", "/nonexistent-armd-dir")
+    assert out.returncode == 1 and out.stderr.strip().count("\n") == 0 and out.stderr.startswith("armd: error:")

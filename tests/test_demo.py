@@ -47,5 +47,5 @@ def test_demo_runs_every_case_on_every_arm(tmp_path: Path) -> None:
 def test_demo_unknown_arm_is_an_error(tmp_path: Path) -> None:
     r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "demo", "nosuch", "--out", str(tmp_path / "d")],
                        capture_output=True, text=True, cwd=ROOT, timeout=60)
-    assert r.returncode == 2 and "unknown robot" in r.stderr
+    assert r.returncode == 1 and "unknown robot" in r.stderr
     assert not (tmp_path / "d").exists()

@@ -41,11 +41,11 @@ def test_cli_plot(tmp_path: Path) -> None:
 
 def test_cli_plot_errors(tmp_path: Path) -> None:
     r = run("plot", "gupta3", "--goal", "0", "1", "-1", "--target", "0.1", "0", "0.1", "--out", str(tmp_path / "x.png"))
-    assert r.returncode == 2 and "exactly one of" in r.stderr
+    assert r.returncode == 1 and "exactly one of" in r.stderr
     r = run("plot", "gupta3", "--goal", "0", "1", "0.5", "--out", str(tmp_path / "x.png"))
-    assert r.returncode == 2 and "elbow" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "elbow" in r.stderr and "Traceback" not in r.stderr
     r = run("plot", "nosuch", "--goal", "0", "--out", str(tmp_path / "x.png"))
-    assert r.returncode == 2 and "unknown robot" in r.stderr
+    assert r.returncode == 1 and "unknown robot" in r.stderr
     assert not (tmp_path / "x.png").exists()
 
 

@@ -136,14 +136,14 @@ def test_serve_listens_where_its_file_says_and_does_not_warn_on_loopback(tmp_pat
 def test_listening_on_the_network_without_a_login_is_warned_of(command: str) -> None:
     """One warning line naming docs/security.md before the session opens. The address is
     TEST-NET-1 (192.0.2.1, on no machine), so nothing opens to the network: the process then
-    says in one line that Zenoh cannot listen there, and exits 2."""
+    says in one line that Zenoh cannot listen there, and exits 1."""
     endpoint = f"tcp/192.0.2.1:{free_port()}"
     out = subprocess.run([sys.executable, "-m", "armd.clients.cli", command, "--listen", endpoint], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     warnings = [line for line in out.stderr.splitlines() if line.startswith("armd: warning:")]
     assert len(warnings) == 1, out.stderr
     assert endpoint in warnings[0] and "docs/security.md" in warnings[0]
-    assert out.returncode == 2 and "armd: error: Zenoh cannot open the session" in out.stderr
+    assert out.returncode == 1 and "armd: error: Zenoh cannot open the session" in out.stderr
     assert "Traceback" not in out.stderr
 
 

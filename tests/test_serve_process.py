@@ -71,16 +71,16 @@ def test_cli_against_the_process(served: str) -> None:
     r = cli(served, "stop", "desk4")
     assert r.returncode == 0 and "adapters" in r.stdout
     r = cli(served, "ik", "gupta3", "0.2", "0.0", "nan")
-    assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
     r = cli(served, "ik", "gupta9", "0.2", "0.0", "0.1")
-    assert r.returncode == 2 and "unknown robot" in r.stderr
+    assert r.returncode == 1 and "unknown robot" in r.stderr
 
 
 def test_cli_without_a_service() -> None:
     r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "robots", "--connect",
                         f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
-    assert r.returncode == 2 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_operator_limits_from_the_command_line(served: str) -> None:
@@ -107,4 +107,4 @@ def test_operator_limits_from_the_command_line(served: str) -> None:
 def test_serve_refuses_a_nonsense_limit() -> None:
     r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
                         "--deadline", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 2 and "deadline must be" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 1 and "deadline must be" in r.stderr and "Traceback" not in r.stderr
