@@ -98,7 +98,7 @@ def test_cli_writes_the_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
                                   ["workspace", "sg5ut", "--step", "1"], ["workspace", "sg5ut", "--heights", "0"]])
 def test_cli_bad_input_is_an_error(argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "ws.png"
-    assert main([*argv, "--out", str(out)]) == 2
+    assert main([*argv, "--out", str(out)]) == 1
     assert "armd: error:" in capsys.readouterr().err
     assert not out.exists()
 
