@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from armd.robots.types import FloatArray
 
 # The peers' FK must match robot.fk this closely [m] before they are benchmarked.
 FK_AGREEMENT = 1e-9

@@ -20,10 +20,10 @@ import zenoh
 from numpy.typing import NDArray
 
 from armd.robots import ArmdError
+from armd.robots.types import FloatArray
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
 
-FloatArray = NDArray[np.float64]
 JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
 

@@ -23,8 +23,7 @@ from numpy.typing import NDArray
 
 from armd import planning
 from armd.robots import BadRequest, LimitError, Robot
-
-FloatArray = NDArray[np.float64]
+from armd.robots.types import FloatArray
 
 MAX_BYTES = 8 * 1024 * 1024  # [bytes] of one message, checked before parsing (20,000 samples of 6 joints: ~5 MB)
 MAX_SAMPLES = 20_000  # the service's default max_samples

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from armd import robots
 from armd.robots import ArmdError, BadRequest, Robot
+from armd.robots.types import FloatArray
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -43,8 +44,6 @@ if TYPE_CHECKING:
     import zenoh
 
 log = logging.getLogger(__name__)
-FloatArray = NDArray[np.float64]
-
 HOST = "127.0.0.1"
 DEFAULT_PORT = 7000  # meshcat's own default; without an explicit port the next free one is taken
 PORT_TRIES = 100

@@ -23,8 +23,8 @@ from numpy.typing import NDArray
 
 from armd import robots, solvers
 from armd.robots import BadRequest, Robot
+from armd.robots.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 Progress = Callable[[int, int], None]
 

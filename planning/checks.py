@@ -13,8 +13,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import ActuatorRangeError, CoupledLimitError, JointLimitError, LimitError, Robot
+from armd.robots.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 POSITION_TOL = 1e-7  # [rad]: numerical noise (Ruckig lands on a target to ~1e-8); far below any actuator step

@@ -21,9 +21,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from armd.robots.types import FloatArray
 from armd.solvers.jit import jit
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 MARGIN = 1e-12  # [rad, rad/s ...]: all_clear is stricter than the checks by this much

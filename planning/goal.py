@@ -6,14 +6,12 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.robots import BadRequest, Robot
+from armd.robots.types import FloatArray
 from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
 
 from .errors import PlanRejected
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

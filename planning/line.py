@@ -20,17 +20,15 @@ from collections.abc import Callable
 
 import numpy as np
 import ruckig
-from numpy.typing import NDArray
 
 from armd.robots import Robot
+from armd.robots.types import FloatArray
 from armd.solvers import solve_ik, solve_ik_batch
 
 from .errors import PlanRejected, TrajectoryTooLong
 from .ruckig_path import RuckigPath, calculate, whole_cycles
 from .state import JointState
 from .trajectory import Evaluator, forward_jerk
-
-FloatArray = NDArray[np.float64]
 
 GRID_STEP = 0.005  # [m] spacing of the geometric pass
 MAX_JUMP = 0.25  # [rad] a joint moving more than this between grid points: a branch flip

@@ -11,13 +11,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.robots import Robot
+from armd.robots.types import FloatArray
 
 from .trajectory import Trajectory
-
-FloatArray = NDArray[np.float64]
 
 
 def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str | None = None) -> Path:

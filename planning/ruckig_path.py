@@ -23,14 +23,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import ruckig
-from numpy.typing import NDArray
 
 from armd.robots import ArmdError, BadRequest, Robot
+from armd.robots.types import FloatArray
 
 from .compiled import evaluate
 from .state import JointState
-
-FloatArray = NDArray[np.float64]
 
 
 class PlannerError(ArmdError):

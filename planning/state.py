@@ -7,11 +7,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.robots import BadRequest, Robot
-
-FloatArray = NDArray[np.float64]
+from armd.robots.types import FloatArray
 
 
 @dataclass(frozen=True)

@@ -16,12 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import Robot
+from armd.robots.types import FloatArray
 
 from .checks import POSITION_TOL, RATE_TOL, actuator_commands, check_samples
 from .compiled import all_clear
 from .state import JointState
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 Evaluator = Callable[[float], tuple[FloatArray, FloatArray, FloatArray]]
 

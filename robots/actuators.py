@@ -17,8 +17,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ActuatorMapError, ActuatorRangeError, BadRequest
+from .types import FloatArray
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 _TOL = 1e-7  # [rad] numerical slack on actuator angle ranges (a servo pulse step is ~1.6e-3 rad)

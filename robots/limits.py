@@ -14,8 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import CoupledLimitError, JointLimitError
-
-FloatArray = NDArray[np.float64]
+from .types import FloatArray
 
 
 @dataclass(frozen=True)

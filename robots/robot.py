@@ -15,15 +15,14 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from numpy.typing import NDArray
 
 from .actuators import ActuatorMap, Gripper
 from .errors import BadRequest
 from .geometry import Geometry
 from .limits import JointLimits
 from .sensors import RangeSensor
+from .types import FloatArray
 
-FloatArray = NDArray[np.float64]
 _FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check (not another byte order)
 
 

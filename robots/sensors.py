@@ -13,11 +13,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from .errors import BadRequest
-
-FloatArray = NDArray[np.float64]
+from .types import FloatArray
 
 
 @dataclass(frozen=True)

@@ -12,11 +12,10 @@ handful of iterations of a tiny KKT solve: about a microsecond, compiled.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+
+from armd.robots.types import FloatArray
 
 from .jit import jit
-
-FloatArray = NDArray[np.float64]
 
 
 @jit

@@ -14,12 +14,13 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from armd.robots.types import FloatArray
+
 from .family import configs_at, formula_errors, rank_by_distance
 from .geometric import family_fk
 from .jit import jit
 from .pitch import BOUNDARY_TOL, boundary_pitch, grid_pitch
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 EXACT, NEAREST_PITCH, NONE = 0, 1, 2

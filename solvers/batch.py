@@ -19,14 +19,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import BadRequest, Robot
+from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_many
 from .geometric import BRANCH_NAMES
 from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _arm, _closest, _solve_numerical, solve_ik
 from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
 from .target import approach_pitch
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

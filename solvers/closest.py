@@ -18,13 +18,14 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from armd.robots.types import FloatArray
+
 from .activeset import solve_qp
 from .analytic import NONE, solve_one
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import jit
 from .limits import limits_ok
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them

@@ -8,11 +8,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from armd.robots.types import FloatArray
+
 from .geometric import branches, family_fk, wrap_into
 from .jit import jit
 from .limits import limits_ok
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 

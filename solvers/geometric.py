@@ -29,10 +29,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import Robot
+from armd.robots.types import FloatArray
 
 from .jit import jit
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 TWO_PI = 2.0 * math.pi

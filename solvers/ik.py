@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import BadRequest, Robot
+from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, pack, packed_outputs, solve_packed
 from .closest import closest_family
@@ -43,7 +44,6 @@ from .qp import QPRefiner
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 _Head = tuple[FloatArray, IntArray]  # solve_packed's per-arm arguments (solvers.analytic.pack)
 

@@ -3,12 +3,9 @@ away) and coupled rows ``clo <= C q <= chi`` (exactly: no slack)."""
 
 from __future__ import annotations
 
-import numpy as np
-from numpy.typing import NDArray
+from armd.robots.types import FloatArray
 
 from .jit import jit
-
-FloatArray = NDArray[np.float64]
 
 
 @jit

@@ -22,12 +22,13 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
+from armd.robots.types import FloatArray
+
 from .family import configs_at
 from .geometric import TWO_PI, two_link, wrap_angle, wrap_into
 from .jit import jit
 from .limits import limits_ok
 
-FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 BOUNDARY_TOL = 1e-9  # [rad] slack for the joint that sits on its limit (then clamped onto it)

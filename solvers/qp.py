@@ -25,11 +25,9 @@ from dataclasses import dataclass
 import daqp
 import numpy as np
 import pinocchio as pin
-from numpy.typing import NDArray
 
 from armd.robots import ArmdError, Robot
-
-FloatArray = NDArray[np.float64]
+from armd.robots.types import FloatArray
 
 _LOCAL = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _MARGIN = 1e-12  # [rad]

@@ -7,10 +7,7 @@ from __future__ import annotations
 
 from typing import Any, NamedTuple
 
-import numpy as np
-from numpy.typing import NDArray
-
-FloatArray = NDArray[np.float64]
+from armd.robots.types import FloatArray
 
 OK = "ok"
 APPROXIMATE = "approximate"

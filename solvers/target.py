@@ -16,11 +16,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.robots import BadRequest, Robot
+from armd.robots.types import FloatArray
 
-FloatArray = NDArray[np.float64]
 _FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check
 
 PARALLEL = 0.0

@@ -19,14 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.robots import Robot, Servo, Stepper
+from armd.robots.types import FloatArray
 
 from .grbl import GrblEmulator
 from .ssc32 import SSC32Emulator
 
-FloatArray = NDArray[np.float64]
 MIN_PIECE = 1e-4  # [s] pieces shorter than this are not counted as pieces of motion
 
 
