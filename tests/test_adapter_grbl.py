@@ -23,6 +23,8 @@ from armd.clients.emulators.measure import actuator_limits_deg, fitted_peaks, gr
 from armd.clients.grbl import GrblAdapter
 from tests.conftest import collect, wait_for
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 ARM = "gupta3"
 
 

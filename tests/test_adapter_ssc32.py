@@ -26,6 +26,8 @@ from armd.clients.ssc32 import SSC32Adapter
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 
 def ssc32_joints(arm: robots.Robot, emu: SSC32Emulator) -> np.ndarray:
     pulses = np.array([emu.pulse(a.channel) for a in arm.actuators.actuators])  # type: ignore[union-attr]

@@ -19,6 +19,8 @@ from armd.solvers import solve_ik
 from armd.solvers.closest import closest_box, closest_family, refine_family
 from armd.solvers.ik import _arm
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 ARM = robots.load("desk4")
 N_TARGETS = 2000
 KINDS = ("beyond reach", "near the yaw axis", "above or below", "behind the base", "anywhere")

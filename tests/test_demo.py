@@ -7,7 +7,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from armd import robots
+
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
 ROOT = Path(__file__).resolve().parent.parent
 CASES = ["ik parallel", "ik perpendicular", "ik free", "ik unreachable", "joint move", "line move", "stop"]

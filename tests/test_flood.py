@@ -10,11 +10,15 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
+
 from armd import robots
 from armd.clients import ArmClient
 from armd.clients.sim import SimAdapter
 from armd.service.server import Service
 from tests.conftest import wait_for
+
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
 ROOT = Path(__file__).resolve().parent.parent
 MOVE_BOUND = 2.0  # [s] (bench/flood.py: tens of milliseconds)

@@ -18,6 +18,8 @@ import serial
 
 from armd.clients.emulators.grbl import GrblEmulator
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 WELCOME = "Grbl 1.1h ['$' for help]"
 Open = Callable[..., tuple[GrblEmulator, serial.Serial]]
 

@@ -5,11 +5,15 @@ measured by the benchmark itself (docs/benchmarks.md), never asserted here."""
 
 from __future__ import annotations
 
+import pytest
+
 from armd import robots
 from armd.clients.sim import SimAdapter
 from armd.service.server import Service
 from bench.load import STOP_ARM, run
 from tests.conftest import wait_for
+
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
 
 def test_load_with_a_stop_in_it(router: str, service: Service, adapter_session: object) -> None:

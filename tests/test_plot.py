@@ -7,9 +7,12 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from armd import planning, robots
 from armd.planning.plot import plot_trajectory
+
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -15,6 +15,8 @@ import zenoh
 from armd.service.zconfig import network_config
 from tests.test_security import secured  # noqa: F401 (the fixture: a router with the ACL, and each role's config)
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 SETTLE = 0.4  # [s] for a declaration to reach the router and the other sessions
 WAIT = 0.6  # [s] how long a delivery is waited for
 

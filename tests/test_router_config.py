@@ -20,6 +20,8 @@ from armd.clients import ArmClient
 from armd.service.zconfig import client_config, free_port, network_config
 from tests.conftest import wait_for
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs" / "security"
 

@@ -16,6 +16,8 @@ from armd import robots
 from armd.clients import ArmClient, ServiceError
 from tests.conftest import free_port
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 ROOT = Path(__file__).resolve().parent.parent
 LIMITS = ["--max-batch", "50", "--max-payload", "200000", "--max-samples", "5000", "--max-waypoints", "10",
           "--deadline", "3", "--workers", "2"]  # the operator's flags, other than the defaults

@@ -32,6 +32,8 @@ from armd.clients.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, Vie
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
 
+pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
+
 ROOT = Path(__file__).resolve().parent.parent
 W, H = 800, 600
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
