@@ -111,3 +111,20 @@ def collect(client: object, key: str) -> tuple[list[dict[str, object]], object]:
 def _adapter_state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Adapters keep what must outlive them (the SSC-32's last pose) in a test's own folder."""
     monkeypatch.setenv("ARMD_STATE_DIR", str(tmp_path / "armd-state"))
+
+
+# -- TLS: a certificate authority made at test time -------------------------------------------------
+
+import subprocess  # noqa: E402
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "security"
+
+
+@pytest.fixture
+def certs(tmp_path: Path) -> Path:
+    """A throwaway CA and router certificate, made by docs/security/make-certs.sh."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed: the TLS tests make a throwaway certificate authority with it")
+    out = tmp_path / "certs"
+    subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
+    return out

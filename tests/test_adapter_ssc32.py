@@ -221,6 +221,15 @@ def commanded(adapter: SSC32Adapter) -> Motion:
     return Motion(np.array(times), np.array(points), 0)
 
 
+def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subprocess.Popen[str]:
+    """``armd adapter ssc32 insomniac`` as a user runs it: a process of its own, its log in
+    ``tmp_path`` (a pipe nobody reads would stall it once full), its kept pose there too."""
+    env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
+    return subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
+                             port, "--connect", router, *extra], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=(tmp_path / "adapter.log").open("w"), text=True)
+
+
 def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
     EMULATORS.append(emu)
     m = ssc32_motion(arm, emu, since=since)
@@ -251,10 +260,7 @@ def test_a_move_keeps_every_limit_at_the_board(router: str, client: ArmClient, s
     a thread switch can hold a write after it was timed)."""
     arm = robots.load("insomniac")
     with EmulatorProcess(SSC32Emulator, baud=baud, query_delay=query_delay) as emu:  # (its own CPU, as a board)
-        env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-        proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
-                                 emu.port, "--connect", router, "--baud", str(baud)], cwd=ROOT, env=env,
-                                stdout=subprocess.DEVNULL, stderr=(tmp_path / "adapter.log").open("w"), text=True)
+        proc = adapter_process(emu.port, router, tmp_path, "--baud", str(baud))
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
             events, sub = collect(client, "armd/insomniac/events")
@@ -333,10 +339,7 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmC
     finishes the trajectory later: never faster than the limits."""
     arm = robots.load("insomniac")
     with EmulatorProcess(SSC32Emulator) as emu:  # (a board has its own CPU: not this busy interpreter's)
-        env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-        proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
-                                 emu.port, "--connect", router], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
-                                stderr=(tmp_path / "adapter.log").open("w"), text=True)  # (a full pipe would stall it)
+        proc = adapter_process(emu.port, router, tmp_path)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
             time.sleep(0.1)

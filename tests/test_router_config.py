@@ -4,7 +4,6 @@ the file's endpoints are the ones opened (the TLS router of docs/security opens 
 
 from __future__ import annotations
 
-import shutil
 import signal
 import subprocess
 import sys
@@ -44,16 +43,6 @@ def running(*args: str, ready: str) -> Iterator[tuple[subprocess.Popen[str], str
         finally:
             proc.kill()
     assert proc.returncode == 0, proc.stderr.read()
-
-
-@pytest.fixture
-def certs(tmp_path: Path) -> Path:
-    """A throwaway CA and router certificate, made by docs/security/make-certs.sh."""
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl is not installed: the TLS tests make a throwaway certificate authority with it")
-    out = tmp_path / "certs"
-    subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
-    return out
 
 
 def _tls_copy(name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int) -> Path:

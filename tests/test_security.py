@@ -4,8 +4,6 @@ with the login and the ACL, with a throwaway CA made at test time."""
 
 from __future__ import annotations
 
-import shutil
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -90,16 +88,6 @@ def test_a_wrong_password_cannot_connect(secured: dict[str, Path]) -> None:
 
 
 # -- TLS -------------------------------------------------------------------------------------------
-
-@pytest.fixture
-def certs(tmp_path: Path) -> Path:
-    """A throwaway CA and router certificate, made by docs/security/make-certs.sh."""
-    if shutil.which("openssl") is None:
-        pytest.skip("openssl is not installed: the TLS tests make a throwaway certificate authority with it")
-    out = tmp_path / "certs"
-    subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
-    return out
-
 
 def _tls(name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int, as_name: str | None = None,
          **replace: str) -> Path:
