@@ -43,7 +43,7 @@ import zenoh
 
 from armd import planning
 from armd.planning import JointState
-from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot
+from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot, StartMismatch
 from armd.service.protocol import encode
 
 from .trajectory_message import MAX_BYTES, Command, motion, parse
@@ -117,6 +117,7 @@ class Adapter(ABC):
         self._seen: OrderedDict[str, None] = OrderedDict()  # ids accepted, newest last
         self._unlock: str | None = None  # an operator's unlock request, for the control loop
         self._latest: JointState = JointState.at_rest(np.array(robot.neutral, dtype=float))
+        self._moving = False
         self._state_pub = session.declare_publisher(f"{base}/state", encoding=JSON)
         self._event_pub = session.declare_publisher(f"{base}/events", encoding=JSON,
                                                     congestion_control=zenoh.CongestionControl.BLOCK)
@@ -189,7 +190,8 @@ class Adapter(ABC):
             self._subs.append(self.session.declare_subscriber(f"{self._base}/{key}", callback))
         self.stop_command("warm-up")  # (a first stop compiles the planner's code: seconds, not now but here)
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
-        self._publish_state()  # where the arm is, at once (the service trusts states of live tokens only)
+        if self._refresh():
+            self._publish_state()  # where the arm is, at once (the service trusts states of live tokens only)
         self._thread.start()
 
     def event(self, event: str, **fields: Any) -> None:
@@ -254,9 +256,9 @@ class Adapter(ABC):
         if np.any(off > tol):
             j = int(np.argmax(off - tol))
             name = self.robot.joint_names[j]
-            raise BadRequest(f"the trajectory starts {off[j]:.4f} rad from where {name} is ({here.position[j]:.4f} rad;"
-                             f" at most {tol[j]:.4f} here): planned from another state", field="position",
-                             joint=name)
+            raise StartMismatch(f"the trajectory starts {off[j]:.4f} rad from where {name} is "
+                                f"({here.position[j]:.4f} rad; at most {tol[j]:.4f} here): planned from another "
+                                "state", field="position", joint=name, state=here.to_dict())
 
     def _install(self, cmd: Command) -> None:
         """Make ``cmd`` the running trajectory (the control loop starts it on its next pass)."""
@@ -356,9 +358,11 @@ class Adapter(ABC):
             except Exception as e:  # a bug must not leave the arm moving unattended
                 log.exception("%s adapter error", self.kind)
                 self._faulted(f"adapter error: {type(e).__name__}: {e}", cmd)
+            known = self._refresh()  # (every pass: what a trajectory's start is checked against)
             if now >= next_state:
                 next_state = now + self.state_period
-                self._publish_state()
+                if known:
+                    self._publish_state()
             self._stop.wait(self.run_tick if cmd is not None and not finished else self.tick)
 
     def finished(self, cmd: Command) -> None:
@@ -402,18 +406,24 @@ class Adapter(ABC):
         if self._token is None:
             self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
 
-    def _publish_state(self) -> None:
+    def _refresh(self) -> bool:
+        """Where the arm is now (``_latest``; at rest unless a trajectory runs): False if the
+        controller could not say."""
         with self._lock:
             cmd, finished = self._cmd, self._finished
         try:
             s = self.measure()
         except Exception:  # the controller may be gone: the fault path reports it
             log.debug("measure failed", exc_info=True)
-            return
-        moving = cmd is not None and not finished and not self.fault
-        if not moving:
-            s = JointState.at_rest(s.position)
-        self._latest = s
+            return False
+        self._moving = cmd is not None and not finished and not self.fault
+        self._latest = s if self._moving else JointState.at_rest(s.position)
+        return True
+
+    def _publish_state(self) -> None:
+        with self._lock:
+            cmd = self._cmd
+        s, moving = self._latest, self._moving
         message = encode({
             "robot": self.robot.name, "adapter": self.id, "kind": self.kind,
             "position": s.position.tolist(), "velocity": s.velocity.tolist(), "acceleration": s.acceleration.tolist(),

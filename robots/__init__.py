@@ -22,6 +22,7 @@ from .errors import (
     LimitError,
     PositionUnknown,
     RobotFileError,
+    StartMismatch,
     UnknownRobot,
 )
 
@@ -74,6 +75,7 @@ __all__ = [
     "Robot",
     "RobotFileError",
     "Servo",
+    "StartMismatch",
     "Stepper",
     "ToolPose",
     "UnknownRobot",

@@ -39,6 +39,14 @@ class BadRequest(ArmdError):
         self.field = field
 
 
+class StartMismatch(BadRequest):
+    """A trajectory whose first sample is not where the arm is (an adapter's refusal): planned
+    from another state. ``state``: where the adapter says the arm is (``position``,
+    ``velocity``, ``acceleration``), so that the planner can start again from there."""
+
+    code = "start_mismatch"
+
+
 class UnknownRobot(ArmdError):
     """No arm of that name in the catalogue."""
 

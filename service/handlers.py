@@ -21,10 +21,25 @@ import numpy as np
 
 from armd import planning, solvers
 from armd.planning import JointState
-from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot
+from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot, StartMismatch
 
 from .deadline import Deadline
-from .protocol import FK, GRIPPER, IK_BATCH, IK_ONE, MOVE, NOTHING, PLAN, PROTOCOL_VERSION, Limits, NoAdapter, check
+from .protocol import (
+    FK,
+    GRIPPER,
+    IK_BATCH,
+    IK_ONE,
+    MOVE,
+    NOTHING,
+    PLAN,
+    PROTOCOL_VERSION,
+    REPORT_POSITION_SLACK,
+    REPORT_SPEED_SLACK,
+    Limits,
+    NoAdapter,
+    Rejected,
+    check,
+)
 from .state import StateBook
 
 Publish = Callable[[Robot, dict[str, Any]], Any]  # (a trajectory's: the id of the adapter that accepted it)
@@ -104,11 +119,24 @@ class Handlers:
         if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
             msg["target"] = goal["target"]  # the Cartesian target asked for (viewers draw it)
         deadline.check()  # the last moment to give up: after this the arm moves
-        adapter = self.publish(arm, msg)  # (once an adapter has accepted it)
+        source = known.source
+        try:
+            adapter = self.publish(arm, msg)  # (once an adapter has accepted it)
+        except Rejected as e:
+            there = _where_the_adapter_is(arm, e.fields.get("error"))
+            if there is None:
+                raise
+            # The adapter's word on where the arm is beat the service's (its reports came late):
+            # planned once more from there, and checked by the adapter again.
+            traj = self._plan(arm, req, there, deadline)
+            msg = {**self._message(arm, traj, "move"), **({"target": msg["target"]} if "target" in msg else {})}
+            deadline.check()
+            adapter = self.publish(arm, msg)
+            source = "adapter"
         self.book.commanded(arm.name, traj)
         return {"id": msg["id"], "adapter": adapter, "path": traj.path, "duration": traj.duration,
                 "samples": len(traj.times), "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(),
-                "start_source": known.source}
+                "start_source": source}
 
     def stop(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Never refused: not for lateness, not for a state outside the limits. The stop goes
@@ -158,6 +186,27 @@ class Handlers:
         msg = traj.to_dict()
         msg.update({"id": uuid.uuid4().hex, "kind": kind})
         return msg
+
+
+def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
+    """The state an adapter gave with its ``start_mismatch`` refusal, if it is one and
+    plausible (finite, the arm's size, within the limits with the service's slack for reports);
+    else None."""
+    if not isinstance(error, Mapping) or error.get("code") != StartMismatch.code:
+        return None
+    state = error.get("state")
+    if not isinstance(state, Mapping):
+        return None
+    try:
+        q, v, a = (np.asarray(state[k], dtype=float) for k in ("position", "velocity", "acceleration"))
+    except (KeyError, TypeError, ValueError):
+        return None
+    if any(x.shape != (arm.nq,) or not np.all(np.isfinite(x)) for x in (q, v, a)):
+        return None
+    if not arm.limits.contains(q, tol=REPORT_POSITION_SLACK) \
+            or np.any(np.abs(v) > arm.limits.velocity * REPORT_SPEED_SLACK):
+        return None
+    return JointState(q, v, a)
 
 
 class BatchTooLarge(BadRequest):

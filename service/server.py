@@ -51,6 +51,8 @@ from armd.robots import ArmdError, Robot, UnknownRobot
 from .deadline import Deadline, DeadlineExceeded
 from .handlers import Handlers
 from .protocol import (
+    REPORT_POSITION_SLACK,
+    REPORT_SPEED_SLACK,
     VERBS,
     Internal,
     Limits,
@@ -68,8 +70,6 @@ QUICK_BYTES = 2048  # an IK request this small is one target: answered without q
 JSON = zenoh.Encoding.APPLICATION_JSON
 Route = tuple[Robot | None, str]  # (arm, verb); (None, "robots") for the service-wide verb
 ACCEPT_TIMEOUT = 1.0  # [s] how long a move waits for an adapter to accept its trajectory
-POSITION_SLACK = 0.05  # [rad] a reported position may be this far outside the limits (quantisation, noise)
-SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
 JUMP_SLACK = 0.05  # [rad] what a report may move beyond what the velocity limits allow since the last one
 SETTLE = 0.1  # [s] the time a report may move over, beyond the time between reports (bunched deliveries)
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
@@ -85,6 +85,7 @@ class _Acceptance:
         self.adapter: str | None = None  # who accepted it
         self.by: str | None = None  # who last refused it, and why
         self.reason = ""
+        self.error: dict[str, Any] | None = None  # ... and its error object
         self.rejections = 0
 
 
@@ -289,7 +290,7 @@ class Service:
                 self._pending.pop(ident, None)
         if waiter.adapter is None:
             raise Rejected(f"{arm.name}'s adapter refused the trajectory: {waiter.reason}", robot=arm.name,
-                           adapter=waiter.by, reason=waiter.reason)
+                           adapter=waiter.by, reason=waiter.reason, error=waiter.error)
         return waiter.adapter
 
     def _on_event(self, sample: zenoh.Sample) -> None:
@@ -313,6 +314,8 @@ class Service:
                 waiter.done.set()
             else:
                 waiter.by, waiter.reason = adapter, str(msg.get("reason", "no reason given"))
+                error = msg.get("error")
+                waiter.error = error if isinstance(error, dict) else None
                 waiter.rejections += 1
                 if waiter.rejections >= len(self._adapters.get(robot, ())):  # every live adapter said no
                     waiter.done.set()
@@ -388,10 +391,10 @@ class Service:
             self._ignore(robot, "out of order or replayed")
             return
         lim = arm.limits
-        if not lim.contains(q, tol=POSITION_SLACK):
+        if not lim.contains(q, tol=REPORT_POSITION_SLACK):
             self._ignore(robot, "outside the limits")
             return
-        if np.any(np.abs(v) > lim.velocity * SPEED_SLACK):
+        if np.any(np.abs(v) > lim.velocity * REPORT_SPEED_SLACK):
             self._ignore(robot, "faster than the limits")
             return
         last = self.book.last(robot, adapter)

@@ -124,3 +124,37 @@ def test_a_move_names_the_adapter_that_accepted_it(client: ArmClient, service: o
         assert reply.adapter == adapter.id
     finally:
         adapter.close()
+
+
+def test_a_move_planned_from_a_late_report_is_planned_again_from_the_adapters_word(
+        client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    """The service's picture of the arm is only as fresh as the last report (late on a loaded
+    machine; here an adapter that reports about once a second). A move planned from an old
+    report is refused by the adapter (`start_mismatch`, with where the arm is); the service plans
+    it once more from there, and the move succeeds, starting where the arm is."""
+    arm = robots.load(ARM)
+    adapter = SimAdapter(adapter_session, arm, state_hz=1.15)
+    events, sub = collect(client, f"armd/{ARM}/events")
+    goals = [(np.array(arm.neutral) + d * np.eye(arm.nq)[0]).tolist() for d in (0.8, -0.8)]
+    try:
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
+        for attempt in range(6):  # until the last report before arrival was taken on the way
+            goal = goals[attempt % 2]
+            first = client.move(ARM, goal)
+            wait_for(lambda i=first.id: any(e.get("event") == "done" and e.get("id") == i for e in events),
+                     what="the first move done")
+            believed = client.state(ARM)
+            if believed["source"] == "adapter" and not np.allclose(believed["position"], goal, atol=0.05):
+                break
+        else:
+            pytest.fail("every report came after arrival: the test measured nothing")
+        second = client.call(f"{ARM}/move", {"goal": goals[(attempt + 1) % 2]})
+        assert np.allclose(second["start"]["position"], goal, atol=0.03)  # (where the arm is, not the old report)
+        refused = [e for e in events if e.get("event") == "rejected" and e.get("id") != second["id"]]
+        assert refused and refused[-1]["error"]["code"] == "start_mismatch"  # type: ignore[index]
+        assert np.allclose(refused[-1]["error"]["state"]["position"], goal, atol=0.03)  # type: ignore[index]
+        wait_for(lambda: any(e.get("event") == "accepted" and e.get("id") == second["id"] for e in events),
+                 what="the second plan accepted")
+    finally:
+        sub.undeclare()  # type: ignore[attr-defined]
+        adapter.close()
