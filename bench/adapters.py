@@ -3,7 +3,7 @@
 Per adapter on its emulator (the SSC-32 for insomniac, GRBL for gupta3), the adapter a process
 of its own (``armd adapter ...``, as a user runs it) and the service in this one, in four
 conditions. The SSC-32 emulator runs in a process of its own too, at real-time priority where
-the system allows it (``clients/emulators/process.py``): a board has its own CPU, and an
+the system allows it (``adapters/emulators/process.py``): a board has its own CPU, and an
 emulator starved beside the busy processes would stamp commands late. (GRBL's emulator stays
 in this process, where its figures meet their bars.)
 
@@ -45,9 +45,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from armd import robots  # noqa: E402
-from armd.clients import ArmClient  # noqa: E402
-from armd.clients.emulators.grbl import GrblEmulator  # noqa: E402
-from armd.clients.emulators.measure import (  # noqa: E402
+from armd.adapters.emulators.grbl import GrblEmulator  # noqa: E402
+from armd.adapters.emulators.measure import (  # noqa: E402
     Motion,
     actuator_limits_deg,
     fitted_peaks,
@@ -57,8 +56,9 @@ from armd.clients.emulators.measure import (  # noqa: E402
     ssc32_motion,
     ssc32_speed_noise,
 )
-from armd.clients.emulators.process import EmulatorProcess  # noqa: E402
-from armd.clients.emulators.ssc32 import SSC32Emulator  # noqa: E402
+from armd.adapters.emulators.process import EmulatorProcess  # noqa: E402
+from armd.adapters.emulators.ssc32 import SSC32Emulator  # noqa: E402
+from armd.clients import ArmClient  # noqa: E402
 from armd.service.server import Service  # noqa: E402
 from armd.service.zconfig import free_endpoint, network_config  # noqa: E402
 
@@ -109,7 +109,7 @@ class Bench:
         env = {**os.environ, "ARMD_STATE_DIR": state_dir}
         log = Path(state_dir) / "adapter.log"  # (a pipe nobody reads would stall the adapter once full)
         with log.open("w") as err:
-            proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", kind, robot, "--port", port,
+            proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", kind, robot, "--port", port,
                                      "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
                                     cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
         wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30,

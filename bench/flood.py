@@ -105,7 +105,7 @@ def main() -> None:
     from armd.service.zconfig import free_endpoint
 
     endpoint = free_endpoint()
-    serve = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--sim", "--listen", endpoint],
+    serve = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--sim", "--listen", endpoint],
                              cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     results: dict[str, Any] = {}
     try:

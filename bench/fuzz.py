@@ -50,7 +50,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10_000)
     args = ap.parse_args()
     endpoint = free_endpoint()
-    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint], cwd=ROOT,
+    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint], cwd=ROOT,
                             stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     proc.stdout.readline()

@@ -368,7 +368,7 @@ def main() -> None:
     endpoint = args.endpoint
     if endpoint is None:
         endpoint = free_endpoint()
-        service = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint, "--sim",
+        service = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim",
                                     *args.serve_args.split()], cwd=ROOT, stdout=subprocess.PIPE, text=True)
         assert service.stdout is not None
         line = service.stdout.readline()

@@ -149,7 +149,7 @@ def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # 
 def start_servers(embedded: bool, stack: contextlib.ExitStack) -> tuple[str, str]:
     """The router (routed only), the service and the echo, each stopped when ``stack`` closes:
     (the service's endpoint, the echo's endpoint)."""
-    cli = [sys.executable, "-m", "armd.clients.cli"]
+    cli = [sys.executable, "-m", "armd.cli"]
 
     def process(cmd: list[str]) -> None:
         proc = subprocess.Popen([*cli, *cmd], cwd=ROOT, stdout=subprocess.PIPE, text=True)

@@ -1,4 +1,5 @@
-"""armd's clients: the Python client library (and, later, the hardware adapter daemons)."""
+"""armd's Python client library: :class:`ArmClient` and its typed replies. It needs Zenoh,
+orjson and NumPy only (no Pinocchio, no Numba: those are the service's)."""
 
 from .client import ArmClient, FKReply, IKReply, MoveReply, NoReply, ServiceError, TrajectoryReply
 

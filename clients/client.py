@@ -10,8 +10,7 @@ from __future__ import annotations
 import time
 import uuid
 from collections.abc import Sequence
-from dataclasses import dataclass
-from pathlib import Path
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -57,6 +56,7 @@ class IKReply:
     branch: str
     branches: list[dict[str, Any]]
     reason: str | None
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the reply as the service sent it
 
     @property
     def ok(self) -> bool:
@@ -69,6 +69,7 @@ class FKReply:
     position: FloatArray
     pitch: float
     within_limits: bool
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the reply as the service sent it
 
 
 @dataclass(frozen=True)
@@ -82,13 +83,14 @@ class TrajectoryReply:
     velocity: FloatArray
     acceleration: FloatArray
     commands: NDArray[np.int64]
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the reply as the service sent it
 
     @classmethod
     def of(cls, r: dict[str, Any]) -> TrajectoryReply:
         """From the JSON of a ``plan`` reply."""
         return cls(r["path"], r["duration"], r["rate_hz"], r["joint_names"], np.array(r["times"]),
                    np.array(r["position"]), np.array(r["velocity"]), np.array(r["acceleration"]),
-                   np.array(r["commands"], dtype=np.int64))
+                   np.array(r["commands"], dtype=np.int64), r)
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,7 @@ class MoveReply:
     goal: FloatArray
     start_source: str
     adapter: str = ""  # the adapter that accepted the trajectory
+    raw: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)  # the reply as the service sent it
 
 
 class ArmClient:
@@ -192,7 +195,7 @@ class ArmClient:
 
     def fk(self, robot: str, q: Sequence[float]) -> FKReply:
         r = self.call(f"{robot}/fk", {"q": list(q)})
-        return FKReply(np.array(r["q"]), np.array(r["position"]), r["pitch"], r["within_limits"])
+        return FKReply(np.array(r["q"]), np.array(r["position"]), r["pitch"], r["within_limits"], r)
 
     def ik(self, robot: str, target: object, *, approach: object = None, seed: Sequence[float] | None = None,
            tolerance: float | None = None, quantise: bool = False) -> IKReply:
@@ -207,7 +210,7 @@ class ArmClient:
             req["quantise"] = True
         r = self.call(f"{robot}/ik", req)
         return IKReply(r["status"], np.array(r["q"]), r["position_error"], np.array(r["reached"]), r["pitch"],
-                       r["pitch_error"], r["branch"], r["branches"], r["reason"])
+                       r["pitch_error"], r["branch"], r["branches"], r["reason"], r)
 
     def ik_batch(self, robot: str, targets: object, *, approach: object = None, seeds: object = None) -> dict[str, Any]:
         req: dict[str, Any] = {"targets": _jsonable(targets)}
@@ -232,27 +235,10 @@ class ArmClient:
         arm has arrived (the service's state of it says at rest at the goal)."""
         r = self.call(f"{robot}/move", _motion(goal, path, speed, rate_hz, via))
         reply = MoveReply(r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"],
-                          str(r.get("adapter", "")))
+                          str(r.get("adapter", "")), r)
         if wait:
             self.wait_until_still(robot, reply.goal, timeout=wait_timeout or reply.duration + 5.0)
         return reply
-
-    def plot(self, robot: str, trajectory: TrajectoryReply, out: str | Path, title: str | None = None) -> Path:
-        """Write a PNG of a planned trajectory (position, velocity, acceleration, jerk per
-        joint), the arm's limits, asked of the service, drawn as dashed lines."""
-        from armd.planning.plot import plot_samples
-        from armd.planning.trajectory import forward_jerk
-
-        joints = self.info(robot)["joints"]
-        by_name = {j["name"]: j for j in joints}
-        limit = {k: np.array([by_name[n][k] for n in trajectory.joint_names], dtype=float)
-                 for k in ("lower", "upper", "velocity", "acceleration", "jerk")}
-        t = trajectory
-        return plot_samples(
-            out, t.joint_names, t.times, t.position, t.velocity, t.acceleration,
-            forward_jerk(t.acceleration, 1.0 / t.rate_hz), lower=limit["lower"], upper=limit["upper"],
-            vmax=limit["velocity"], amax=limit["acceleration"], jmax=limit["jerk"],
-            title=title or f"{robot}: {t.path} trajectory, {t.duration:.2f} s at {t.rate_hz:g} Hz (dashed: limits)")
 
     def stop(self, robot: str) -> dict[str, Any]:
         return self.call(f"{robot}/stop")

@@ -1,4 +1,4 @@
-"""What every adapter does on the Zenoh side (clients/adapter.py), on the simulated arm: the
+"""What every adapter does on the Zenoh side (adapters/base.py), on the simulated arm: the
 checks a trajectory passes by its motion, ids run once, the estop that needs no service."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ import pytest
 import zenoh
 
 from armd import planning, robots
+from armd.adapters.sim import SimAdapter
+from armd.adapters.trajectory_message import MAX_BYTES
 from armd.clients import ArmClient
-from armd.clients.sim import SimAdapter
-from armd.clients.trajectory_message import MAX_BYTES
 from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 

@@ -17,12 +17,12 @@ import pytest
 import zenoh
 
 from armd import robots
+from armd.adapters.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
+from armd.adapters.emulators.measure import ratios as _ratios
+from armd.adapters.emulators.process import EmulatorProcess
+from armd.adapters.emulators.ssc32 import SSC32Emulator
+from armd.adapters.ssc32 import SSC32Adapter
 from armd.clients import ArmClient, ServiceError
-from armd.clients.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
-from armd.clients.emulators.measure import ratios as _ratios
-from armd.clients.emulators.process import EmulatorProcess
-from armd.clients.emulators.ssc32 import SSC32Emulator
-from armd.clients.ssc32 import SSC32Adapter
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
@@ -173,7 +173,7 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, ser
 def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Session) -> None:
     """Servo arms to the GRBL adapter, stepper arms to the SSC-32's: refused before any port
     is opened, naming what the adapter drives."""
-    from armd.clients.grbl import GrblAdapter
+    from armd.adapters.grbl import GrblAdapter
     from armd.robots import BadRequest
 
     with pytest.raises(BadRequest) as e:
@@ -189,7 +189,7 @@ def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Sessio
 ROOT = Path(__file__).resolve().parent.parent
 GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint near its velocity limit
 # The board's pulses are whole microseconds: the measure allows each piece's speed the
-# uncertainty of its ends' rounding (clients/emulators/measure.py). What is left is the host's
+# uncertainty of its ends' rounding (adapters/emulators/measure.py). What is left is the host's
 # timing of its writes (a millisecond on 20 ms pieces); the adapter's own model keeps every
 # change within the limit (test_the_adapters_own_model_keeps_the_limits).
 ACCEL_BAR = 1.05
@@ -225,7 +225,7 @@ def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subp
     """``armd adapter ssc32 insomniac`` as a user runs it: a process of its own, its log in
     ``tmp_path`` (a pipe nobody reads would stall it once full), its kept pose there too."""
     env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-    return subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
+    return subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", "ssc32", "insomniac", "--port",
                              port, "--connect", router, *extra], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
                             stderr=(tmp_path / "adapter.log").open("w"), text=True)
 

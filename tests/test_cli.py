@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -13,7 +14,7 @@ pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; 
 
 
 def armd(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "armd.cli", *args], capture_output=True, text=True,
                           cwd=Path(__file__).resolve().parent.parent, timeout=120)
 
 
@@ -50,11 +51,11 @@ def test_an_adapter_waits_for_a_router_and_says_so() -> None:
     import signal
     import time
 
-    from armd.clients.emulators.ssc32 import SSC32Emulator
+    from armd.adapters.emulators.ssc32 import SSC32Emulator
     from armd.service.zconfig import free_endpoint
 
     with SSC32Emulator() as emu:
-        proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "adapter", "ssc32", "insomniac", "--port",
+        proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", "ssc32", "insomniac", "--port",
                                  emu.port, "--connect", free_endpoint()], cwd=Path(__file__).resolve().parent.parent,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         time.sleep(4.0)
@@ -69,7 +70,7 @@ def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> N
     import zenoh
 
     from armd import robots
-    from armd.clients.sim import SimAdapter
+    from armd.adapters.sim import SimAdapter
     from armd.service.zconfig import free_endpoint, network_config
 
     endpoint = free_endpoint()
@@ -96,14 +97,14 @@ BLOCK_EXTRAS = "import sys; sys.modules.update(serial=None, matplotlib=None, mes
 def test_the_service_and_the_simulated_arms_need_no_extra() -> None:
     """pyserial (hardware), matplotlib and meshcat (view) are extras: the service, the client,
     the simulated arms and the command line import without them."""
-    code = BLOCK_EXTRAS + ("import armd.service.server, armd.clients.sim, armd.clients.cli, armd.clients; "
+    code = BLOCK_EXTRAS + ("import armd.service.server, armd.adapters.sim, armd.cli, armd.clients; "
                            "print('ok')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
 
 
 def test_a_command_whose_extra_is_missing_says_which_to_install() -> None:
-    code = BLOCK_EXTRAS + ("from armd.clients.cli import main; "
+    code = BLOCK_EXTRAS + ("from armd.cli import main; "
                            "sys.exit(main(['adapter', 'ssc32', 'insomniac', '--port', '/dev/null']))")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "pip install 'armd[hardware]'" in r.stderr, r.stderr
@@ -117,3 +118,23 @@ def test_usage_errors_exit_2_and_armds_errors_exit_1() -> None:
     assert armd("fk").returncode == 2
     out = armd("catalogue", "--robots-dir", "/nonexistent-armd-dir")
     assert out.returncode == 1 and out.stderr.strip().count("\n") == 0 and out.stderr.startswith("armd: error:")
+
+
+def test_one_log_level_before_or_after_the_command() -> None:
+    """``--log-level`` goes before the command or after it; without it the daemons log at info
+    and the rest at warning; ``serve -v`` is ``--log-level debug``."""
+    from armd.cli import build_parser
+
+    def level(*argv: str) -> str:
+        args = build_parser().parse_args(list(argv))
+        return str(args.log_level or getattr(args, "log_default", "warning"))
+
+    assert level("serve") == "info" and level("adapter", "sim", "insomniac") == "info"
+    assert level("fk", "insomniac", "0") == "warning" and level("catalogue") == "warning"
+    assert level("--log-level", "error", "serve") == "error" and level("serve", "--log-level", "debug") == "debug"
+    assert level("serve", "-v") == "debug" and level("--log-level", "debug", "robots") == "debug"
+    code = ("import logging; from armd.cli import main; main(['--log-level', 'debug', 'catalogue', '--json']); "
+            "print(logging.getLogger('armd').getEffectiveLevel())")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == str(logging.DEBUG), r.stderr
+    assert armd("catalogue", "--log-level", "loud").returncode == 2

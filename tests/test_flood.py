@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from armd import robots
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
-from armd.clients.sim import SimAdapter
 from armd.service.server import Service
 from tests.conftest import wait_for
 

@@ -16,8 +16,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from armd import robots
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
-from armd.clients.sim import SimAdapter
 from armd.service.zconfig import network_config
 from tests.conftest import wait_for
 

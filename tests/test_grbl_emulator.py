@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from armd.clients.emulators.grbl import GrblEmulator
+from armd.adapters.emulators.grbl import GrblEmulator
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -485,7 +485,7 @@ def test_not_responding_times_out_then_recovers(grbl: Open) -> None:
 
 def test_run_as_a_program_until_ctrl_c() -> None:
     root = Path(__file__).resolve().parent.parent
-    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.emulators.grbl"], cwd=root, text=True,
+    proc = subprocess.Popen([sys.executable, "-m", "armd.adapters.emulators.grbl"], cwd=root, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         assert proc.stdout is not None

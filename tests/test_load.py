@@ -8,7 +8,7 @@ from __future__ import annotations
 import pytest
 
 from armd import robots
-from armd.clients.sim import SimAdapter
+from armd.adapters.sim import SimAdapter
 from armd.service.server import Service
 from bench.load import STOP_ARM, run
 from tests.conftest import wait_for

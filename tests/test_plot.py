@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from armd import planning, robots
-from armd.planning.plot import plot_trajectory
+from armd.tools.plot import plot_reply, plot_trajectory
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -31,7 +31,7 @@ def test_plot_writes_a_png_with_content(tmp_path: Path) -> None:
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args], capture_output=True, text=True, cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "armd.cli", *args], capture_output=True, text=True, cwd=ROOT,
                           timeout=300)
 
 
@@ -53,7 +53,7 @@ def test_cli_plot_errors(tmp_path: Path) -> None:
 
 
 def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path: Path) -> None:
-    """ArmClient.plot: the service's samples and limits (from ``info``) drawn; the same picture
+    """plot_reply: the service's samples and limits (from ``info``) drawn; the same picture
     as the planner's own plot of the same plan."""
     import matplotlib.image as mpimg
 
@@ -63,7 +63,7 @@ def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path
     arm = robots.load("sg5ut")
     goal = [0.5, 1.2, -0.8, -0.3]
     reply = client.plan("sg5ut", goal, start=arm.neutral)
-    out = client.plot("sg5ut", reply, tmp_path / "c.png", title="same")
+    out = plot_reply(client, "sg5ut", reply, tmp_path / "c.png", title="same")  # type: ignore[arg-type]
     local = plot_trajectory(planning.plan(arm, arm.neutral, goal), arm, tmp_path / "l.png", title="same")
     a, b = mpimg.imread(out), mpimg.imread(local)
     assert a.shape == b.shape
@@ -71,7 +71,7 @@ def test_client_plots_a_planned_trajectory(client: object, router: str, tmp_path
 
 
 def test_cli_plan_plot(client: object, router: str, tmp_path: Path, capsys: object) -> None:
-    from armd.clients.cli import main
+    from armd.cli import main
 
     out = tmp_path / "plan.png"
     assert main(["plan", "insomniac", "--target", "0.25", "0.05", "0.2", "--start", "0", "1.2", "-1.2", "0", "0",

@@ -11,8 +11,8 @@ import pytest
 import zenoh
 
 from armd import robots
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
-from armd.clients.sim import SimAdapter
 
 DOC = (Path(__file__).resolve().parent.parent / "docs" / "protocol.md").read_text()
 EXAMPLES = re.findall(r"```json request (\S+)\n(.*?)```", DOC, flags=re.S)

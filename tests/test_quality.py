@@ -1,5 +1,6 @@
 """The codebase's own checks: ruff (lint, import order) and mypy, as configured in pyproject.toml,
-and the layers' one-way imports (robots -> solvers -> planning -> service -> clients)."""
+the layers' one-way imports (robots -> solvers -> planning -> service -> clients, the adapters
+beside the client, the tools and the CLI on top), and no import cycle between files."""
 
 from __future__ import annotations
 
@@ -13,7 +14,38 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-LAYERS = ["robots", "solvers", "planning", "service", "clients"]
+LAYERS = ["robots", "solvers", "planning", "service", "clients", "adapters", "tools", "cli"]
+# What each layer may import (besides itself): the data flow, one way.
+ALLOWED = {
+    "robots": set(),
+    "solvers": {"robots"},
+    "planning": {"robots", "solvers"},
+    "service": {"robots", "solvers", "planning"},
+    "clients": {"robots", "service"},  # (the wire: service.protocol's encoding, service.zconfig's sessions)
+    "adapters": {"robots", "planning", "service"},  # (not the client: adapters speak the keys themselves)
+    "tools": {"robots", "solvers", "planning", "service", "clients", "adapters"},
+    "cli": {"robots", "solvers", "planning", "service", "clients", "adapters", "tools"},
+}
+
+
+def _imports(path: Path) -> list[str]:
+    """Every module ``path`` imports, anywhere in it (inside functions too), as absolute names;
+    ``from X import name`` counts as X.name (a submodule, or a name of X: the caller resolves)."""
+    rel = path.relative_to(ROOT).with_suffix("")
+    dotted = ["armd", *rel.parts] if rel.parts[0] in LAYERS else list(rel.parts)
+    package = dotted[:-1]  # (a package's __init__: the package itself)
+    out = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            out += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[: len(package) - (node.level - 1)]
+                module = ".".join([*base, *([node.module] if node.module else [])])
+            else:
+                module = node.module or ""
+            out += [f"{module}.{a.name}" for a in node.names]
+    return out
 
 
 def _tool(name: str) -> list[str]:
@@ -45,27 +77,65 @@ def test_mypy_is_clean(tmp_path: Path) -> None:
 
 
 def test_layers_import_one_way() -> None:
-    """A layer may import only the layers before it in the data flow."""
+    """A layer may import only the layers :data:`ALLOWED` for it."""
+    assert set(ALLOWED) == set(LAYERS)
     problems = []
-    for rank, layer in enumerate(LAYERS):
-        allowed = set(LAYERS[: rank + 1])
+    for layer in LAYERS:
         for path in (ROOT / layer).rglob("*.py"):
-            tree = ast.parse(path.read_text(), str(path))
-            for node in ast.walk(tree):
-                names = []
-                if isinstance(node, ast.Import):
-                    names = [a.name for a in node.names]
-                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module == "armd":
-                    names = [f"armd.{a.name}" for a in node.names]  # from armd import robots
-                elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                    names = [node.module]
-                for name in names:
-                    parts = name.split(".")
-                    if parts[0] in LAYERS:
-                        problems.append(f"{path.relative_to(ROOT)} imports {name}: import armd.{name} instead")
-                    elif parts[0] == "armd" and len(parts) > 1 and parts[1] in LAYERS and parts[1] not in allowed:
-                        problems.append(f"{path.relative_to(ROOT)} imports {name}")
+            for name in _imports(path):
+                parts = name.split(".")
+                if parts[0] in LAYERS:
+                    problems.append(f"{path.relative_to(ROOT)} imports {name}: import armd.{name} instead")
+                elif (parts[0] == "armd" and len(parts) >= 2 and parts[1] in LAYERS and parts[1] != layer
+                      and parts[1] not in ALLOWED[layer]):
+                    problems.append(f"{path.relative_to(ROOT)} imports {'.'.join(parts[:3])}")
     assert not problems, "\n".join(problems)
+
+
+def _modules() -> dict[str, Path]:
+    """Every module of the package: its name and its file."""
+    found = {}
+    for layer in LAYERS:
+        for path in (ROOT / layer).rglob("*.py"):
+            rel = path.relative_to(ROOT).with_suffix("")
+            parts = ["armd", *rel.parts]
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            found[".".join(parts)] = path
+    return found
+
+
+def test_no_import_cycles_between_files() -> None:
+    """No file imports one that imports it back, directly or round a loop (a package's
+    ``__init__``, which only gathers its files' names, does not count as an importer)."""
+    modules = _modules()
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        if path.name == "__init__.py":
+            continue
+        targets = set()
+        for imported in _imports(path):
+            while imported and imported not in modules:  # X.name: the module X
+                imported = imported.rpartition(".")[0]
+            if imported and imported != name and modules[imported].name != "__init__.py":
+                targets.add(imported)
+        graph[name] = targets
+    cycles = []
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+
+    def visit(node: str, trail: list[str]) -> None:
+        state[node] = 1
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                cycles.append(" -> ".join([*trail[trail.index(nxt):], nxt]))
+            elif nxt not in state:
+                visit(nxt, [*trail, nxt])
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+    assert not cycles, "\n".join(cycles)
 
 
 def test_one_package_at_the_top_of_site_packages(tmp_path: Path) -> None:

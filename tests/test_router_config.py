@@ -29,7 +29,7 @@ DOCS = ROOT / "docs" / "security"
 def running(*args: str, ready: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
     """``armd ARGS`` in a process of its own, once it printed a line containing ``ready``: the
     process and that line. Stopped with SIGTERM at the end, as a service manager stops it."""
-    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stderr is not None
     try:
@@ -129,7 +129,7 @@ def test_listening_on_the_network_without_a_login_is_warned_of(command: str) -> 
     TEST-NET-1 (192.0.2.1, on no machine), so nothing opens to the network: the process then
     says in one line that Zenoh cannot listen there, and exits 1."""
     endpoint = f"tcp/192.0.2.1:{free_port()}"
-    out = subprocess.run([sys.executable, "-m", "armd.clients.cli", command, "--listen", endpoint], cwd=ROOT,
+    out = subprocess.run([sys.executable, "-m", "armd.cli", command, "--listen", endpoint], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
     warnings = [line for line in out.stderr.splitlines() if line.startswith("armd: warning:")]
     assert len(warnings) == 1, out.stderr

@@ -26,7 +26,7 @@ LIMITS = ["--max-batch", "50", "--max-payload", "200000", "--max-samples", "5000
 @pytest.fixture(scope="module")
 def served() -> Iterator[str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", endpoint, "--sim",
+    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim",
                              "--time-scale", "5", *LIMITS], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     assert proc.stdout is not None
@@ -43,7 +43,7 @@ def served() -> Iterator[str]:
 
 
 def cli(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.clients.cli", *args, "--connect", endpoint], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "armd.cli", *args, "--connect", endpoint], cwd=ROOT,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -79,7 +79,7 @@ def test_cli_against_the_process(served: str) -> None:
 
 
 def test_cli_without_a_service() -> None:
-    r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "robots", "--connect",
+    r = subprocess.run([sys.executable, "-m", "armd.cli", "robots", "--connect",
                         f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 1 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
@@ -107,6 +107,6 @@ def test_operator_limits_from_the_command_line(served: str) -> None:
 
 
 def test_serve_refuses_a_nonsense_limit() -> None:
-    r = subprocess.run([sys.executable, "-m", "armd.clients.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
+    r = subprocess.run([sys.executable, "-m", "armd.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
                         "--deadline", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
     assert r.returncode == 1 and "deadline must be" in r.stderr and "Traceback" not in r.stderr

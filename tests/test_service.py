@@ -12,8 +12,8 @@ import pytest
 import zenoh
 
 from armd import robots, solvers
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient, ServiceError
-from armd.clients.sim import SimAdapter
 from armd.robots import ArmdError
 from tests.conftest import collect
 from tests.test_fk import random_in_limits

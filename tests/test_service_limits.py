@@ -16,8 +16,8 @@ import pytest
 import zenoh
 
 from armd import robots
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient, ServiceError
-from armd.clients.sim import SimAdapter
 from armd.robots import BadRequest
 from armd.service.protocol import Limits
 from armd.service.server import Service

@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 import serial
 
-from armd.clients.emulators.ssc32 import GroupMove, SSC32Emulator
+from armd.adapters.emulators.ssc32 import GroupMove, SSC32Emulator
 
 
 class FakeClock:
@@ -268,7 +268,7 @@ def test_stop_is_idempotent_and_ends_the_thread() -> None:
 
 def test_run_as_a_program_until_ctrl_c() -> None:
     root = Path(__file__).resolve().parent.parent
-    proc = subprocess.Popen([sys.executable, "-m", "armd.clients.emulators.ssc32"], cwd=root, text=True,
+    proc = subprocess.Popen([sys.executable, "-m", "armd.adapters.emulators.ssc32"], cwd=root, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     watchdog = threading.Timer(10, proc.kill)  # a hung program ends, and its readline() returns ""
     watchdog.start()

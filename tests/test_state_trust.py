@@ -12,8 +12,8 @@ import pytest
 import zenoh
 
 from armd import robots
+from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient, ServiceError
-from armd.clients.sim import SimAdapter
 from armd.service.server import ACCEPT_TIMEOUT
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for

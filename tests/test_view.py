@@ -27,10 +27,10 @@ from matplotlib.image import imread
 from numpy.typing import NDArray
 
 from armd import planning, robots
-from armd.clients.sim import SimAdapter
-from armd.clients.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ViewerError, ZenohFeed
+from armd.adapters.sim import SimAdapter
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
+from armd.tools.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ViewerError, ZenohFeed
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -91,7 +91,7 @@ def arm_points(arm: robots.Robot, q: object) -> list[NDArray[np.float64]]:
 
 
 def state_message(arm: robots.Robot, q: object) -> bytes:
-    """A state exactly as an adapter publishes it (clients/adapter.py, Adapter._publish_state)."""
+    """A state exactly as an adapter publishes it (adapters/base.py, Adapter._publish_state)."""
     zeros = [0.0] * arm.nq
     return encode({"robot": arm.name, "adapter": "test0000", "kind": "sim", "position": list(map(float, q)),
                    "velocity": zeros, "acceleration": zeros, "moving": False, "trajectory": None, "fault": None,
@@ -248,7 +248,7 @@ def test_bad_input_is_refused(insomniac_view: tuple[ArmView, ZenohFeed]) -> None
 
 
 def armd_view(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "armd.clients.cli", "view", *args], cwd=ROOT, text=True,
+    return subprocess.Popen([sys.executable, "-m", "armd.cli", "view", *args], cwd=ROOT, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             env={**os.environ, "PYTHONUNBUFFERED": "1"})
 

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from armd import robots, solvers
-from armd.clients import workspace
-from armd.clients.cli import main
-from armd.clients.workspace import AREA_A, AREA_B, BACKGROUND, Drawn
+from armd.cli import main
+from armd.tools import workspace
+from armd.tools.workspace import AREA_A, AREA_B, BACKGROUND, Drawn
 
 ARMS = ["insomniac", "sg5ut", "gupta3", "desk4"]
 COLOURS = {"none": BACKGROUND, "A": AREA_A, "B": AREA_B}

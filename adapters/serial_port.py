@@ -11,7 +11,7 @@ import zenoh
 
 from armd.robots import Robot
 
-from .adapter import Adapter, ControllerFault
+from .base import Adapter, ControllerFault
 
 
 def open_port(port: str, baud: int, timeout: float, write_timeout: float, *,

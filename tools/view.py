@@ -12,12 +12,11 @@ publish, at 50 Hz or more) and ``<prefix>/<robot>/trajectory`` (what ``move`` an
 publish). Drawing is throttled: only the newest state is drawn, at most ``max_rate_hz``
 times a second, by a thread of the view; callers never wait for the browser.
 
-``armd view ROBOT`` wires the two together and prints the viewer's URL.
+``armd view ROBOT`` (:mod:`armd.cli.tools`) wires the two together and prints the viewer's URL.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import math
@@ -31,7 +30,6 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armd import robots
 from armd.robots import ArmdError, BadRequest, Robot
 from armd.robots.types import FloatArray
 
@@ -594,57 +592,4 @@ class ZenohFeed:
         self.close()
 
 
-# -- the command -----------------------------------------------------------------------------------
-
-
-def _arm(name: str, robots_dir: str | None) -> Robot:
-    """Catalogue arm ``name``, or the one of that name in ``robots_dir`` (which wins)."""
-    mine = robots.load_dir(robots_dir) if robots_dir else {}
-    if name in mine:
-        return mine[name]
-    if name in robots.names():
-        return robots.load(name)
-    raise robots.UnknownRobot(name, [*robots.names(), *mine])
-
-
-def cmd_view(args: argparse.Namespace) -> int:
-    import zenoh
-
-    from armd.clients.cli import _wait_for_signal
-    from armd.service.zconfig import DEFAULT_ENDPOINT, client_config
-
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    arm = _arm(args.robot, args.robots_dir)
-    conf = client_config(args.connect, args.config)
-    zenoh.init_log_from_env_or("error")
-    where = ", ".join(args.connect or ([] if args.config else [DEFAULT_ENDPOINT])) or args.config
-    with ArmView(arm, port=args.port, max_rate_hz=args.rate) as view:
-        try:
-            session = zenoh.open(conf)
-        except zenoh.ZError as e:
-            raise ViewerError(f"cannot reach a Zenoh network at {where}: is `armd serve` running? ({e})") from None
-        try:
-            with ZenohFeed(view, session, prefix=args.prefix) as feed:
-                print(f"armd view of {arm.name}: open {view.url}\n  showing {feed.base}/state and "
-                      f"{feed.base}/trajectory from {where}; Ctrl-C to stop", flush=True)
-                _wait_for_signal()
-        finally:
-            session.close()
-    return 0
-
-
-def register(subparsers: Any) -> None:
-    """Add ``armd view`` to the command line's subcommands."""
-    p = subparsers.add_parser("view", help="a live 3-D view of an arm in the browser (meshcat)")
-    p.add_argument("robot")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="default tcp/127.0.0.1:7447")
-    p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
-    p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
-    p.add_argument("--robots-dir", help="a folder of your own arms")
-    p.add_argument("--port", type=int, default=None,
-                   help=f"the viewer's HTTP port on {HOST} (default {DEFAULT_PORT}, or the next free one)")
-    p.add_argument("--rate", type=float, default=30.0, help="most display updates per second (default 30)")
-    p.set_defaults(func=cmd_view)
-
-
-__all__ = ["ArmView", "ViewerError", "ZenohFeed", "register"]
+__all__ = ["DEFAULT_PORT", "HOST", "ArmView", "ViewerError", "ZenohFeed"]

@@ -3,7 +3,7 @@
 It speaks GRBL 1.1's serial protocol on a pseudo-terminal, so that an adapter opens
 ``serial.Serial(emulator.port, 115200, timeout=...)`` exactly as it opens ``/dev/ttyACM0``, and
 it records what it received (``lines``, ``overflows``, ``max_rx_used``) for tests to check. Run
-one by hand with ``python -m armd.clients.emulators.grbl``: it prints the port and serves until Ctrl-C.
+one by hand with ``python -m armd.adapters.emulators.grbl``: it prints the port and serves until Ctrl-C.
 Units are GRBL's "mm": for armd, degrees of the actuator. Times are in seconds. It is written
 from GRBL's source (gnea/grbl, grbl/*.c) and its doc/markdown; the file each behaviour follows
 is named below.
@@ -1683,7 +1683,7 @@ class GrblEmulator(PtyEmulator):
 
 def main(argv: list[str] | None = None) -> None:
     """Serve one emulator until Ctrl-C, printing its port."""
-    parser = argparse.ArgumentParser(prog="python -m armd.clients.emulators.grbl", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m armd.adapters.emulators.grbl", description=__doc__.splitlines()[0])
     parser.add_argument("--axes", default="XYZ", help="axis letters, from XYZABC (default XYZ)")
     parser.add_argument("--time-scale", type=float, default=1.0, help="machine seconds per second (default 1)")
     args = parser.parse_args(argv)

@@ -59,7 +59,7 @@ import zenoh
 from armd.planning import JointState
 from armd.robots import BadRequest, Robot, Servo
 
-from .adapter import ControllerFault, actuators_of
+from .base import ControllerFault, actuators_of
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 

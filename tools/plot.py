@@ -1,8 +1,8 @@
 """Trajectory plots: position, velocity, acceleration and jerk per joint, limits drawn as lines.
 
-Uses matplotlib's Agg backend (no display needed). Called by ``armd plot``, ``armd plan
---plot`` and :meth:`clients.ArmClient.plot` (which has the samples and limits from the
-service rather than a :class:`Trajectory`).
+Uses matplotlib's Agg backend (no display needed). :func:`plot_trajectory` draws a planned
+:class:`~armd.planning.Trajectory` (``armd plot``); :func:`plot_reply` a ``plan`` reply from the
+service, with the limits asked of it (``armd plan --plot``).
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from armd.clients import ArmClient, TrajectoryReply
+from armd.planning.trajectory import Trajectory, forward_jerk
 from armd.robots import Robot
 from armd.robots.types import FloatArray
-
-from .trajectory import Trajectory
 
 
 def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str | None = None) -> Path:
@@ -27,6 +27,22 @@ def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str 
         lower=lim.lower, upper=lim.upper, vmax=lim.velocity, amax=lim.acceleration, jmax=lim.jerk,
         title=title or f"{traj.robot}: {traj.path} trajectory, {traj.duration:.2f} s at {traj.rate_hz:g} Hz "
         "(dashed: limits)")
+
+
+def plot_reply(client: ArmClient, robot: str, trajectory: TrajectoryReply, out: str | Path,
+               title: str | None = None) -> Path:
+    """Write a PNG of a trajectory the service planned (position, velocity, acceleration, jerk
+    per joint), the arm's limits, asked of the service (``info``), drawn as dashed lines."""
+    joints = client.info(robot)["joints"]
+    by_name = {j["name"]: j for j in joints}
+    limit = {k: np.array([by_name[n][k] for n in trajectory.joint_names], dtype=float)
+             for k in ("lower", "upper", "velocity", "acceleration", "jerk")}
+    t = trajectory
+    return plot_samples(
+        out, t.joint_names, t.times, t.position, t.velocity, t.acceleration,
+        forward_jerk(t.acceleration, 1.0 / t.rate_hz), lower=limit["lower"], upper=limit["upper"],
+        vmax=limit["velocity"], amax=limit["acceleration"], jmax=limit["jerk"],
+        title=title or f"{robot}: {t.path} trajectory, {t.duration:.2f} s at {t.rate_hz:g} Hz (dashed: limits)")
 
 
 def plot_samples(out: str | Path, joint_names: Sequence[str], times: FloatArray, position: FloatArray,

@@ -3,7 +3,7 @@
 It speaks the board's ASCII serial protocol on a pseudo-terminal, so that an adapter opens
 ``serial.Serial(emulator.port, 115200, timeout=...)`` exactly as it opens ``/dev/ttyUSB0``,
 and records what it received (``history``, ``out_of_range``, ``errors``) and what it output
-(``segments``) for tests to check. Run one by hand with ``python -m armd.clients.emulators.ssc32``:
+(``segments``) for tests to check. Run one by hand with ``python -m armd.adapters.emulators.ssc32``:
 it prints the port and serves until Ctrl-C.
 
 Covered (SSC-32U user guide, "Commands"); a command ends with a carriage return (``\\r``, ASCII 13)
@@ -396,7 +396,7 @@ class SSC32Emulator(PtyEmulator):
 
 def main(argv: list[str] | None = None) -> int:
     """Serve an emulated SSC-32 until Ctrl-C, printing its port and what it receives."""
-    parser = argparse.ArgumentParser(prog="python -m armd.clients.emulators.ssc32",
+    parser = argparse.ArgumentParser(prog="python -m armd.adapters.emulators.ssc32",
                                      description="An emulated SSC-32 servo controller on a pseudo-terminal.")
     parser.add_argument("--ver", default="SSC32-V2.50USB", help="what VER answers")
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD,

@@ -15,7 +15,7 @@ import zenoh
 from armd.planning import JointState
 from armd.robots import Robot
 
-from .adapter import Adapter
+from .base import Adapter
 from .trajectory_message import Command
 
 

@@ -11,7 +11,6 @@ cell is asked of the batch IK (:func:`solvers.reachable`, the same closed-form s
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Callable
@@ -21,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from armd import robots, solvers
+from armd import solvers
 from armd.robots import BadRequest, Robot
 from armd.robots.types import FloatArray
 
@@ -248,31 +247,3 @@ class ProgressBar:
         bar = f"{self.label} [{'#' * filled}{'.' * (self.width - filled)}] {percent:3d}%"
         sys.stderr.write(("\r" + bar + ("\n" if done >= total else "")) if self.tty else bar + "\n")
         sys.stderr.flush()
-
-
-def cmd_workspace(args: argparse.Namespace) -> int:
-    arms = {name: robots.load(name) for name in robots.names()}
-    if args.robots_dir:
-        arms.update(robots.load_dir(args.robots_dir))
-    if args.robot not in arms:
-        raise robots.UnknownRobot(args.robot, arms)
-    arm = arms[args.robot]
-    ws = compute(arm, step=args.step, heights=args.heights, progress=ProgressBar(f"workspace of {arm.name}"))
-    plot(ws, arm, args.out)
-    cells = ws.side.any_pitch.size + ws.top.any_pitch.size * len(ws.heights)
-    line = (f"{args.out}: {arm.name} workspace, {ws.step * 1000:g} mm cells; side view: A "
-            f"{ws.side.any_pitch.sum() * ws.side.cell_area * 1e4:.0f} cm²")
-    if ws.side.parallel is not None:
-        line += f", B {ws.side.parallel.sum() * ws.side.cell_area * 1e4:.0f} cm²"
-    print(f"{line}; {cells:,} cells per approach by batch IK in {ws.seconds:.2f} s")
-    return 0
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("workspace", help="draw an arm's reachable space (side and top views) to a PNG")
-    p.add_argument("robot")
-    p.add_argument("--out", default="workspace.png", help="PNG file to write")
-    p.add_argument("--step", type=float, default=0.004, help="cell size [m] (default 0.004)")
-    p.add_argument("--heights", type=int, default=16, help="heights the top view looks through (default 16)")
-    p.add_argument("--robots-dir", help="a folder of your own arms")
-    p.set_defaults(func=cmd_workspace)

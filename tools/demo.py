@@ -13,11 +13,10 @@ candidate points), so the script needs no numbers of any particular arm.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,9 +24,10 @@ from typing import Any
 import numpy as np
 
 from armd import robots, solvers
+from armd.clients import ArmClient, ServiceError, TrajectoryReply
 from armd.robots import BadRequest, Robot
 
-from .client import ArmClient, ServiceError, TrajectoryReply
+from .plot import plot_reply
 
 
 @dataclass
@@ -103,7 +103,7 @@ class Demo:
         plan, _ = got
         assert isinstance(plan, TrajectoryReply)
         png = self.out / f"{arm.name}-{case.replace(' ', '-')}.png"
-        c.plot(arm.name, plan, png)
+        plot_reply(c, arm.name, plan, png)
         got = self.timed(arm.name, case, shown, lambda: c.move(arm.name, goal, path=path))
         if got is None:
             return False
@@ -159,7 +159,7 @@ class Demo:
                 self.move(arm, "line move", {"target": end}, "line", _fmt(end))
                 break
         self.stop(arm)
-        from . import workspace
+        from armd.tools import workspace
 
         ws = workspace.compute(arm, step=workspace_step, heights=8)
         png = self.out / f"{arm.name}-workspace.png"
@@ -172,35 +172,37 @@ def print_row(row: Row) -> None:
           flush=True)
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
+def run(names: Sequence[str], out: Path, *, time_scale: float = 2.0, workspace_step: float = 0.008,
+        echo: Callable[[Row], None] = print_row, say: Callable[[str], None] = print) -> list[Row]:
+    """The service and a simulated arm for each of ``names`` (every catalogue arm if empty) on
+    a free local endpoint, the scripted session on each; plots and ``demo.json`` in ``out``.
+    Every request's row goes to ``echo`` as it is done; ``say`` gets the banner and the summary."""
     import zenoh
 
+    from armd.adapters.sim import SimAdapter
     from armd.service.server import Service
     from armd.service.zconfig import free_endpoint, network_config
 
-    from .sim import SimAdapter
-
     arms = {name: robots.load(name) for name in robots.names()}
-    chosen = args.robots or list(arms)
+    chosen = list(names) or list(arms)
     for name in chosen:
         if name not in arms:
             raise robots.UnknownRobot(name, arms)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = free_endpoint()
     started = time.perf_counter()
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(network_config(listen=[endpoint]))
     service = Service(session, {n: arms[n] for n in chosen})
-    sims = [SimAdapter(session, arms[n], time_scale=args.time_scale) for n in chosen]
+    sims = [SimAdapter(session, arms[n], time_scale=time_scale) for n in chosen]
     rows: list[Row] = []
-    print(f"armd demo: service and simulated arms on {endpoint}; plots in {out.resolve()}/", flush=True)
-    print(f"{'arm':<10} {'case':<16} {'target / goal [m]':<26} {'status':<12} {'error m':>8} {'ms':>8}  note")
+    say(f"armd demo: service and simulated arms on {endpoint}; plots in {out.resolve()}/")
+    say(f"{'arm':<10} {'case':<16} {'target / goal [m]':<26} {'status':<12} {'error m':>8} {'ms':>8}  note")
     try:
         with ArmClient(endpoint, timeout=15.0) as client:
-            demo = Demo(client, out, rows, print_row)
+            demo = Demo(client, out, rows, echo)
             for name in chosen:
-                demo.run(arms[name], args.workspace_step)
+                demo.run(arms[name], workspace_step)
     finally:
         for sim in sims:
             sim.close()
@@ -208,15 +210,6 @@ def cmd_demo(args: argparse.Namespace) -> int:
         session.close()
     (out / "demo.json").write_text(json.dumps([r.__dict__ for r in rows], indent=2))
     pngs = sorted(p.name for p in out.glob("*.png"))
-    print(f"{len(rows)} requests on {len(chosen)} arms in {time.perf_counter() - started:.1f} s; "
-          f"{len(pngs)} plots and demo.json in {out.resolve()}/")
-    return 0
-
-
-def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("demo", help="run the service with simulated arms and a scripted session on every arm")
-    p.add_argument("robots", nargs="*", help="arms to show (default: the whole catalogue)")
-    p.add_argument("--out", default="armd-demo", help="folder for the plots and demo.json (default armd-demo)")
-    p.add_argument("--time-scale", type=float, default=2.0, help="simulated time per real second (default 2)")
-    p.add_argument("--workspace-step", type=float, default=0.008, help="workspace map cell size [m]")
-    p.set_defaults(func=cmd_demo)
+    say(f"{len(rows)} requests on {len(chosen)} arms in {time.perf_counter() - started:.1f} s; "
+        f"{len(pngs)} plots and demo.json in {out.resolve()}/")
+    return rows

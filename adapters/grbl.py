@@ -97,7 +97,7 @@ from armd.planning import JointState, plan_stop
 from armd.robots import ArmdError, BadRequest, Robot, Stepper
 from armd.robots.units import parse_angle
 
-from .adapter import START_TOL, ControllerFault, actuators_of
+from .base import START_TOL, ControllerFault, actuators_of
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 

@@ -1,0 +1,194 @@
+"""The commands that ask a running service (or its adapters) through the typed client
+(:class:`armd.clients.ArmClient`): ``robots``, ``ik``, ``fk``, ``plan``, ``move``, ``stop``,
+``estop`` and ``unlock``. ``--json`` prints the reply as the service sent it."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from armd.clients import ArmClient
+
+from .common import approach, goal, numbers
+
+
+def _client(args: argparse.Namespace) -> ArmClient:
+    return ArmClient(args.connect, config=args.config, prefix=args.prefix, timeout=args.timeout)
+
+
+def _show(args: argparse.Namespace, reply: dict[str, Any], table: list[tuple[str, object]]) -> None:
+    if args.json:
+        print(json.dumps(reply, indent=2))
+        return
+    width = max(len(k) for k, _ in table)
+    for k, v in table:
+        if hasattr(v, "tolist"):
+            v = v.tolist()
+        if isinstance(v, float):
+            v = f"{v:.6g}"
+        elif isinstance(v, list) and v and all(isinstance(x, float) for x in v):
+            v = "[" + ", ".join(f"{x:.4f}" for x in v) + "]"
+        print(f"{k:<{width}}  {v}")
+
+
+def cmd_robots(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        reply = {"robots": c.robots()}
+    if args.json:
+        print(json.dumps(reply, indent=2))
+    else:
+        for r in reply["robots"]:
+            print(f"{r['name']:<12} {r['title']}  ({', '.join(r['joints'])})")
+    return 0
+
+
+def cmd_ik(args: argparse.Namespace) -> int:
+    target = numbers(args.xyz, "target")
+    seed = numbers(args.seed, "seed") if args.seed else None
+    with _client(args) as c:
+        r = c.ik(args.robot, target, approach=approach(args.approach), seed=seed)
+    _show(args, r.raw, [("status", r.status), ("q [rad]", r.q), ("position error [m]", r.position_error),
+                        ("reached [m]", r.reached), ("pitch [rad]", r.pitch), ("branch", r.branch),
+                        ("other branches", len(r.branches)), ("reason", r.reason or "")])
+    return 0 if r.ok else 1
+
+
+def cmd_fk(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        r = c.fk(args.robot, numbers(args.q, "q"))
+    _show(args, r.raw, [("position [m]", r.position), ("pitch [rad]", r.pitch), ("within limits", r.within_limits)])
+    return 0
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    start = numbers(args.start, "start") if args.start else None
+    with _client(args) as c:
+        t = c.plan(args.robot, goal(args), start=start, path=args.path, speed=args.speed)
+        if args.plot:
+            from armd.tools.plot import plot_reply  # (matplotlib: the view extra; main() says so)
+
+            plot_reply(c, args.robot, t, args.plot)
+    _show(args, t.raw, [("path", t.path), ("duration [s]", t.duration), ("samples", len(t.times)),
+                        ("rate [Hz]", t.rate_hz), ("end [rad]", t.position[-1]), ("end commands", t.commands[-1])]
+          + ([("plot", args.plot)] if args.plot else []))
+    return 0
+
+
+def cmd_move(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        r = c.move(args.robot, goal(args), path=args.path, speed=args.speed)
+        if args.wait:
+            c.wait_until_still(args.robot, r.goal, timeout=r.duration + 10.0)
+    _show(args, r.raw, [("trajectory", r.id), ("path", r.path), ("duration [s]", r.duration),
+                        ("goal [rad]", r.goal), ("planned from", r.start_source)])
+    return 0
+
+
+def cmd_stop(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        r = c.stop(args.robot)
+    _show(args, r, [("trajectory", r["id"]), ("stops in [s]", r["duration"]), ("rest [rad]", r["rest"]),
+                    ("adapters", r["adapters"])])
+    return 0
+
+
+def cmd_estop(args: argparse.Namespace) -> int:
+    """Straight to the adapters on ``<prefix>/<robot>/estop`` (no service needed); waits
+    ``--wait`` seconds for them to say they are stopping."""
+    with _client(args) as c:
+        acks = c.estop(args.robot, wait=args.wait)
+    for a in acks:
+        print(f"adapter {a['adapter']} ({a['kind']}): stopping, {a.get('duration', 0.0):.3f} s")
+    if not acks:
+        print(f"armd: no adapter of {args.robot} acknowledged the estop within {args.wait} s", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_unlock(args: argparse.Namespace) -> int:
+    """An operator's word to an adapter that lost the arm's position (GRBL after a reset or an alarm)."""
+    how = "home" if args.home else "assume_rest"
+    with _client(args) as c:
+        answer = c.unlock(args.robot, how, wait=args.wait)
+    if answer is None:
+        print(f"armd: no adapter of {args.robot} answered the unlock within {args.wait} s", file=sys.stderr)
+        return 1
+    if answer["event"] != "unlocked":
+        print(f"armd: error: {answer.get('reason', answer)}", file=sys.stderr)
+        return 1
+    print(f"{args.robot}: unlocked ({how})")
+    return 0
+
+
+def _client_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", action="append", metavar="ENDPOINT", help="default tcp/127.0.0.1:7447")
+    p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
+    p.add_argument("--prefix", default="armd")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the service")
+    p.add_argument("--json", action="store_true", help="print the reply as JSON")
+
+
+def _motion_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("robot")
+    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
+    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
+    p.add_argument("--path", choices=["joint", "line"], default="joint")
+    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
+
+
+def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
+    p = sub.add_parser("robots", parents=[log_args], help="the arms a running service serves")
+    _client_args(p)
+    p.set_defaults(func=cmd_robots)
+
+    p = sub.add_parser("ik", parents=[log_args], help="inverse kinematics from the service: armd ik ROBOT X Y Z")
+    p.add_argument("robot")
+    p.add_argument("xyz", nargs=3, metavar="X/Y/Z", help="target [m] in the arm's base frame")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad]")
+    p.add_argument("--seed", nargs="+", metavar="Q", help="current joint vector [rad]")
+    _client_args(p)
+    p.set_defaults(func=cmd_ik)
+
+    p = sub.add_parser("fk", parents=[log_args], help="forward kinematics from the service: armd fk ROBOT Q...")
+    p.add_argument("robot")
+    p.add_argument("q", nargs="+", help="joint vector [rad]")
+    _client_args(p)
+    p.set_defaults(func=cmd_fk)
+
+    p = sub.add_parser("plan", parents=[log_args], help="plan a trajectory on the service (nothing moves)")
+    _motion_args(p)
+    p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector (default: where the arm is)")
+    p.add_argument("--plot", metavar="FILE.png", help="also write a PNG of the trajectory (limits drawn)")
+    _client_args(p)
+    p.set_defaults(func=cmd_plan)
+
+    p = sub.add_parser("move", parents=[log_args], help="move an arm (needs an adapter: hardware or --sim)")
+    _motion_args(p)
+    p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
+    _client_args(p)
+    p.set_defaults(func=cmd_move)
+
+    p = sub.add_parser("stop", parents=[log_args], help="stop an arm now")
+    p.add_argument("robot")
+    _client_args(p)
+    p.set_defaults(func=cmd_stop)
+
+    p = sub.add_parser("estop", parents=[log_args],
+                       help="emergency stop, straight to the arm's adapters (no service needed)")
+    p.add_argument("robot")
+    p.add_argument("--wait", type=float, default=1.0, help="seconds to wait for the adapters to answer")
+    _client_args(p)
+    p.set_defaults(func=cmd_estop)
+
+    p = sub.add_parser("unlock", parents=[log_args],
+                       help="tell an adapter that lost the arm's position where the arm is")
+    p.add_argument("robot")
+    how = p.add_mutually_exclusive_group(required=True)
+    how.add_argument("--home", action="store_true", help="run the controller's homing cycle ($H)")
+    how.add_argument("--assume-rest", action="store_true", help="the arm is at its rest pose: I checked")
+    p.add_argument("--wait", type=float, default=60.0, help="seconds to wait for the adapter's answer")
+    _client_args(p)
+    p.set_defaults(func=cmd_unlock)

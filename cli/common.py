@@ -1,0 +1,115 @@
+"""What the commands share: the arms a command may name, numbers and goals from the command
+line, the network options, signals, Zenoh sessions, and the one logging set-up."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+from typing import Any
+
+from armd import robots
+from armd.robots import Robot
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+LOG_LEVELS = ("debug", "info", "warning", "error")
+
+
+def set_up_logging(level: str) -> None:
+    """The one logging set-up of every command: ``level`` one of :data:`LOG_LEVELS`."""
+    logging.basicConfig(level=getattr(logging, level.upper()), format=LOG_FORMAT)
+
+
+def all_robots(robots_dir: str | None) -> dict[str, Robot]:
+    """The catalogue, plus a user's ``--robots-dir`` (which wins on a name)."""
+    arms = {name: robots.load(name) for name in robots.names()}
+    if robots_dir:
+        arms.update(robots.load_dir(robots_dir))
+    return arms
+
+
+def robot_named(name: str, robots_dir: str | None) -> Robot:
+    arms = all_robots(robots_dir)
+    if name not in arms:
+        raise robots.UnknownRobot(name, arms)
+    return arms[name]
+
+
+def numbers(values: list[str], what: str) -> list[float]:
+    try:
+        return [float(v) for v in values]
+    except ValueError:
+        raise robots.BadRequest(f"{what} must be numbers, got {' '.join(values)}", field=what) from None
+
+
+def approach(value: str | None) -> object:
+    if value is None or value in ("parallel", "perpendicular", "free"):
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        raise robots.BadRequest(f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}",
+                                field="approach") from None
+
+
+def goal(args: argparse.Namespace) -> object:
+    """``--goal Q...`` (joints) or ``--target X Y Z`` (with ``--approach``): exactly one."""
+    if (args.goal is None) == (args.target is None):
+        raise robots.BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
+    if args.goal is not None:
+        return numbers(args.goal, "goal")
+    return {"target": numbers(args.target, "target"), "approach": approach(args.approach)}
+
+
+def network_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--listen", action="append", metavar="ENDPOINT",
+                   help="endpoint to listen on (default: the --config file's, else tcp/127.0.0.1:7447 for the "
+                   "embedded router)")
+    p.add_argument("--connect", action="append", metavar="ENDPOINT",
+                   help="join an existing Zenoh network through this endpoint instead of embedding a router")
+    p.add_argument("--config", help="a Zenoh configuration file (JSON5), used as it is: its endpoints, TLS, "
+                   "credentials; --listen/--connect, where given, replace its endpoints")
+    p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
+
+
+def signals() -> threading.Event:
+    """An event set by SIGTERM or SIGINT (Ctrl-C)."""
+    import signal
+
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    return stop
+
+
+def wait_for_signal(stop: threading.Event | None = None) -> None:
+    """Until SIGTERM or SIGINT."""
+    stop = stop or signals()
+    while not stop.is_set():
+        stop.wait(0.5)
+
+
+def open_session(conf: Any) -> Any:
+    """A Zenoh session on ``conf``, after one warning line on stderr where it listens on the
+    network with no authentication (:func:`armd.service.zconfig.exposure_warning`); an endpoint
+    Zenoh cannot open is an error naming it, not a traceback."""
+    import zenoh
+
+    from armd.service.zconfig import exposure_warning
+
+    warning = exposure_warning(conf)
+    if warning:
+        print(f"armd: warning: {warning}", file=sys.stderr, flush=True)
+    zenoh.init_log_from_env_or("error")
+    try:
+        return zenoh.open(conf)
+    except zenoh.ZError as e:
+        raise robots.BadRequest(f"Zenoh cannot open the session: {str(e).split(' at /')[0]}") from None
+
+
+def where(conf: Any) -> str:
+    """Where a session on ``conf`` is: its connect endpoints, else its listen endpoints."""
+    from armd.service.zconfig import endpoints
+
+    return ", ".join(endpoints(conf, "connect") or endpoints(conf, "listen")) or "no endpoint"

@@ -1,0 +1,5 @@
+import sys
+
+from armd.cli import main
+
+sys.exit(main())
