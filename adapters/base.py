@@ -42,8 +42,9 @@ import orjson
 import zenoh
 
 from armd import planning
+from armd.errors import ArmdError, BadRequest, ControllerFault, PositionUnknown, StartMismatch
 from armd.planning import JointState
-from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot, StartMismatch
+from armd.robots import Robot
 from armd.service.protocol import encode
 
 from .trajectory_message import MAX_BYTES, Command, motion, parse
@@ -57,10 +58,6 @@ CONTROL_BYTES = 4096  # [bytes] the most an estop or unlock message may carry
 UNLOCKS = ("home", "assume_rest")
 
 
-class ControllerFault(ArmdError):
-    """The controller stopped answering, or reported an error or alarm."""
-
-    code = "fault"
 
 
 A = TypeVar("A")

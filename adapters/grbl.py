@@ -93,11 +93,12 @@ import numpy as np
 import serial
 import zenoh
 
+from armd.errors import ArmdError, BadRequest, ControllerFault
 from armd.planning import JointState, plan_stop
-from armd.robots import ArmdError, BadRequest, Robot, Stepper
+from armd.robots import Robot, Stepper
 from armd.robots.units import parse_angle
 
-from .base import START_TOL, ControllerFault, actuators_of
+from .base import START_TOL, actuators_of
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 

@@ -9,9 +9,10 @@ import threading
 import serial
 import zenoh
 
+from armd.errors import ControllerFault
 from armd.robots import Robot
 
-from .base import Adapter, ControllerFault
+from .base import Adapter
 
 
 def open_port(port: str, baud: int, timeout: float, write_timeout: float, *,

@@ -56,10 +56,11 @@ import numpy as np
 import serial
 import zenoh
 
+from armd.errors import BadRequest, ControllerFault
 from armd.planning import JointState
-from armd.robots import BadRequest, Robot, Servo
+from armd.robots import Robot, Servo
 
-from .base import ControllerFault, actuators_of
+from .base import actuators_of
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 
@@ -164,7 +165,7 @@ class SSC32Adapter(SerialAdapter):
                 self.serial.close()
                 raise ControllerFault(f"the SSC-32 on {self.port} holds {self.robot.name} outside its limits "
                                       f"({bad[0].message}): move the arm inside them by hand (power off) first")
-            q = np.minimum(np.maximum(q, lim.lower), lim.upper)
+            q = lim.clip(q)
             log.info("%s: the board outputs pulses already (%s us): adopted as it is",
                      self.robot.name, " ".join(str(int(p)) for p in pulses))
             self._hold_at(q)
@@ -335,7 +336,7 @@ class SSC32Adapter(SerialAdapter):
         if self._within(x):
             return x
         if not self._within(p0):
-            return np.minimum(np.maximum(p0, self.robot.limits.lower), self.robot.limits.upper)
+            return self.robot.limits.clip(p0)
         lo, hi = 0.0, 1.0
         for _ in range(30):
             mid = (lo + hi) / 2
@@ -483,7 +484,7 @@ class SSC32Adapter(SerialAdapter):
         if not self.robot.limits.contains(q, tol=0.02):
             bad = self.robot.limits.violations(q, tol=0.02)[0].message
             return f"SSC-32 on {self.port} holds the arm outside its limits ({bad})"
-        self._hold_at(np.minimum(np.maximum(q, self.robot.limits.lower), self.robot.limits.upper))
+        self._hold_at(self.robot.limits.clip(q))
         return None
 
     def _compare(self, pulses: FloatArray, asked: float, answered: float) -> None:

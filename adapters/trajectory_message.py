@@ -22,7 +22,8 @@ import orjson
 from numpy.typing import NDArray
 
 from armd import planning
-from armd.robots import BadRequest, LimitError, Robot
+from armd.errors import BadRequest, LimitError
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 MAX_BYTES = 8 * 1024 * 1024  # [bytes] of one message, checked before parsing (20,000 samples of 6 joints: ~5 MB)
@@ -122,7 +123,7 @@ def parse(robot: Robot, payload: bytes) -> Command:
     planning.check_samples(robot, times, pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros_like(pos))
     _within(robot, times, vel, robot.limits.velocity, "velocity", "rad/s")
     _within(robot, times, acc, robot.limits.acceleration, "acceleration", "rad/s^2")
-    commands = planning.actuator_commands(robot, times, np.clip(pos, robot.limits.lower, robot.limits.upper))
+    commands = planning.actuator_commands(robot, times, robot.limits.clip(pos))
     return Command(ident, kind, float(rate), times, pos, vel, acc, commands)
 
 

@@ -25,7 +25,7 @@ import ruckig
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from armd import planning, robots
-from armd.planning import PlanRejected
+from armd.errors import PlanRejected
 
 
 def _random_q(arm: robots.Robot, rng: np.random.Generator, n: int) -> np.ndarray:

@@ -127,7 +127,8 @@ def hammer_raw(endpoint: str, seconds: float, seed: int, out: mp.Queue, key: str
 
 
 def hammer(endpoint: str, seconds: float, seed: int, out: mp.Queue) -> None:  # type: ignore[type-arg]
-    from armd.clients import ArmClient, NoReply
+    from armd.clients import ArmClient
+    from armd.errors import NoReply
 
     ts = targets(500, seed)
     done = lost = errors = 0

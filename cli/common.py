@@ -10,6 +10,7 @@ import threading
 from typing import Any
 
 from armd import robots
+from armd.errors import BadRequest, UnknownRobot
 from armd.robots import Robot
 
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
@@ -32,7 +33,7 @@ def all_robots(robots_dir: str | None) -> dict[str, Robot]:
 def robot_named(name: str, robots_dir: str | None) -> Robot:
     arms = all_robots(robots_dir)
     if name not in arms:
-        raise robots.UnknownRobot(name, arms)
+        raise UnknownRobot(name, arms)
     return arms[name]
 
 
@@ -40,7 +41,7 @@ def numbers(values: list[str], what: str) -> list[float]:
     try:
         return [float(v) for v in values]
     except ValueError:
-        raise robots.BadRequest(f"{what} must be numbers, got {' '.join(values)}", field=what) from None
+        raise BadRequest(f"{what} must be numbers, got {' '.join(values)}", field=what) from None
 
 
 def approach(value: str | None) -> object:
@@ -49,14 +50,14 @@ def approach(value: str | None) -> object:
     try:
         return float(value)
     except ValueError:
-        raise robots.BadRequest(f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}",
+        raise BadRequest(f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}",
                                 field="approach") from None
 
 
 def goal(args: argparse.Namespace) -> object:
     """``--goal Q...`` (joints) or ``--target X Y Z`` (with ``--approach``): exactly one."""
     if (args.goal is None) == (args.target is None):
-        raise robots.BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
+        raise BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
     if args.goal is not None:
         return numbers(args.goal, "goal")
     return {"target": numbers(args.target, "target"), "approach": approach(args.approach)}
@@ -105,7 +106,7 @@ def open_session(conf: Any) -> Any:
     try:
         return zenoh.open(conf)
     except zenoh.ZError as e:
-        raise robots.BadRequest(f"Zenoh cannot open the session: {str(e).split(' at /')[0]}") from None
+        raise BadRequest(f"Zenoh cannot open the session: {str(e).split(' at /')[0]}") from None
 
 
 def where(conf: Any) -> str:

@@ -8,7 +8,8 @@ import sys
 import threading
 from typing import Any
 
-from armd.robots import ArmdError, BadRequest, Robot
+from armd.errors import ArmdError, BadRequest
+from armd.robots import Robot
 
 from .common import all_robots, network_args, open_session, robot_named, signals, wait_for_signal, where
 
@@ -54,8 +55,8 @@ def cmd_adapter(args: argparse.Namespace) -> int:
     arm = robot_named(args.robot, args.robots_dir)
     port = None
     if args.kind != "sim":
-        from armd.adapters.base import ControllerFault
         from armd.adapters.serial_port import open_port  # (pyserial: the hardware extra; main() says so)
+        from armd.errors import ControllerFault
 
         if not args.port:
             raise BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")

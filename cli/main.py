@@ -9,7 +9,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from armd.robots import ArmdError
+from armd.errors import ArmdError
 
 from . import calls, daemons, offline, tools
 from .common import LOG_LEVELS, set_up_logging

@@ -21,8 +21,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
 def cmd_view(args: argparse.Namespace) -> int:
     import zenoh
 
+    from armd.errors import ViewerError
     from armd.service.zconfig import DEFAULT_ENDPOINT, client_config
-    from armd.tools.view import ArmView, ViewerError, ZenohFeed
+    from armd.tools.view import ArmView, ZenohFeed
 
     arm = robot_named(args.robot, args.robots_dir)
     conf = client_config(args.connect, args.config)

@@ -18,7 +18,7 @@ import orjson
 import zenoh
 from numpy.typing import NDArray
 
-from armd.robots import ArmdError
+from armd.errors import NoReply, from_reply
 from armd.robots.types import FloatArray
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
@@ -27,22 +27,8 @@ JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
 
 
-class ServiceError(ArmdError):
-    """The service answered with an error: ``code`` is the protocol's (``bad_request``,
-    ``unknown_robot``, ``unreachable``, ``limit``, ``no_adapter``, ``too_large``, ``deadline``,
-    ``internal`` ...)."""
-
-    def __init__(self, reply: dict[str, Any]) -> None:
-        fields = {k: v for k, v in reply.items() if k not in ("code", "message")}
-        super().__init__(str(reply.get("message", "error")), **fields)
-        self.code = str(reply.get("code", "internal"))
-        self.field = fields.get("field")
 
 
-class NoReply(ArmdError):
-    """No service answered within the timeout (none running, or the network is down)."""
-
-    code = "timeout"
 
 
 @dataclass(frozen=True)
@@ -163,7 +149,7 @@ class ArmClient:
                     obj = orjson.loads(body)
                 except ValueError:  # Zenoh's own error (a timeout): not a service reply
                     break
-                raise ServiceError(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
+                raise from_reply(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
         if time.monotonic() - started < wait / 2:  # ended at once: nothing on the network serves the key
             raise NoReply(f"no armd service answered {self.prefix}/{key}: nothing on the network serves it "
                           "(no service for this robot, or an access-control list that refuses it to this user "

@@ -8,10 +8,8 @@
 """
 
 from .checks import actuator_commands, check_samples
-from .errors import PlanRejected
 from .goal import CartesianGoal
 from .plan import DEFAULT_RATE_HZ, plan, plan_stop
-from .ruckig_path import PlannerError
 from .state import JointState, joint_state
 from .trajectory import Trajectory
 
@@ -19,8 +17,6 @@ __all__ = [
     "DEFAULT_RATE_HZ",
     "CartesianGoal",
     "JointState",
-    "PlanRejected",
-    "PlannerError",
     "Trajectory",
     "actuator_commands",
     "check_samples",

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from armd.robots import ActuatorRangeError, CoupledLimitError, JointLimitError, LimitError, Robot
+from armd.errors import ActuatorRangeError, LimitError
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 IntArray = NDArray[np.int64]
@@ -39,17 +40,9 @@ def check_samples(robot: Robot, times: FloatArray, position: FloatArray, velocit
             raise LimitError(f"joint {names[j]!r} {kind} is not a number at t = {times[k]:.4f} s",
                              name=names[j], value=float(values[k, j]), bounds=(-np.inf, np.inf), kind=kind,
                              time=float(times[k]))
-    bad = (position < lim.lower - POSITION_TOL) | (position > lim.upper + POSITION_TOL)
-    if bad.any():
-        k, j = _first(bad)
-        err = JointLimitError(names[j], float(position[k, j]), (float(lim.lower[j]), float(lim.upper[j])))
-        raise _at(err, times[k])
-    for c in lim.coupled:
-        v = position @ c.coefficients
-        over = (v < c.lower - POSITION_TOL) | (v > c.upper + POSITION_TOL)
-        if over.any():
-            k = int(np.argmax(over))
-            raise _at(CoupledLimitError(c.name, float(v[k]), (c.lower, c.upper)), times[k])
+    outside = lim.first_outside(position, tol=POSITION_TOL)
+    if outside is not None:
+        raise _at(outside[1], times[outside[0]])
     for values, limit, kind, unit in ((velocity, lim.velocity, "velocity", "rad/s"),
                                       (acceleration, lim.acceleration, "acceleration", "rad/s^2"),
                                       (jerk, lim.jerk, "jerk", "rad/s^3")):

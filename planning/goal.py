@@ -5,13 +5,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-import numpy as np
-
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest, PlanRejected
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
-
-from .errors import PlanRejected
 
 
 @dataclass(frozen=True)
@@ -50,7 +47,7 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
         bad = robot.limits.violations(qv, tol=1e-9)
         if bad:
             raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=field)
-        return np.clip(qv, robot.limits.lower, robot.limits.upper)
+        return robot.limits.clip(qv)
     r = solve_ik(robot, cg.target, approach=cg.approach, seed=seed)
     if r.status != "ok":
         raise PlanRejected(f"{field}: {r.reason}", field=field, position_error=r.position_error)

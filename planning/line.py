@@ -21,11 +21,12 @@ from collections.abc import Callable
 import numpy as np
 import ruckig
 
+from armd.errors import PlanRejected, TrajectoryTooLong
 from armd.robots import Robot
+from armd.robots.angles import wrap, wrap_array
 from armd.robots.types import FloatArray
 from armd.solvers import solve_ik, solve_ik_batch
 
-from .errors import PlanRejected, TrajectoryTooLong
 from .ruckig_path import RuckigPath, calculate, whole_cycles
 from .state import JointState
 from .trajectory import Evaluator, forward_jerk
@@ -49,7 +50,7 @@ class LinePath:
         self.has_pitch = g is not None and g.has_wrist
         self.pitch0 = robot.tool_pitch(self.q0) if self.has_pitch else 0.0
         asked = self.pitch0 if goal_pitch is None else goal_pitch
-        self.dpitch = math.remainder(asked - self.pitch0, 2 * math.pi) if self.has_pitch else 0.0
+        self.dpitch = wrap(asked - self.pitch0) if self.has_pitch else 0.0
 
     def point(self, s: float) -> FloatArray:
         f = 0.0 if self.length == 0 else s / self.length
@@ -59,7 +60,7 @@ class LinePath:
         if not self.has_pitch:
             return None
         f = 0.0 if self.length == 0 else s / self.length
-        return math.remainder(self.pitch0 + f * self.dpitch, 2 * math.pi)
+        return wrap(self.pitch0 + f * self.dpitch)
 
     def points(self, ss: FloatArray) -> FloatArray:
         f = np.zeros_like(ss) if self.length == 0 else ss / self.length
@@ -69,7 +70,7 @@ class LinePath:
         if not self.has_pitch:
             return None
         f = np.zeros_like(ss) if self.length == 0 else ss / self.length
-        return np.remainder(self.pitch0 + f * self.dpitch + math.pi, 2 * math.pi) - math.pi
+        return wrap_array(self.pitch0 + f * self.dpitch)
 
     def ik_many(self, ss: FloatArray, seeds: FloatArray) -> FloatArray:
         """IK at every path parameter (batch), each from its seed row; refuses the line at the

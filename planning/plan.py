@@ -7,9 +7,9 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest, TrajectoryTooLong
+from armd.robots import Robot
 
-from .errors import TrajectoryTooLong
 from .goal import goal_configuration, goal_point
 from .line import line_samples
 from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles

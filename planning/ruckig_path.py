@@ -24,15 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 import ruckig
 
-from armd.robots import ArmdError, BadRequest, Robot
+from armd.errors import BadRequest, PlannerError
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 from .compiled import evaluate
 from .state import JointState
-
-
-class PlannerError(ArmdError):
-    """Ruckig could not compute a segment (reported as ``internal``: a bug or a corner case)."""
 
 
 @dataclass(frozen=True)
@@ -195,8 +192,8 @@ def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
     """The segment's position extrema stay inside the box limits, and its samples inside the
     coupled limits."""
     lim = robot.limits
-    if not all(lim.lower[i] - 1e-9 <= e.min and e.max <= lim.upper[i] + 1e-9
-               for i, e in enumerate(traj.position_extrema)):
+    extrema = traj.position_extrema
+    if not (lim.in_box(np.array([e.min for e in extrema])) and lim.in_box(np.array([e.max for e in extrema]))):
         return False
     if lim.coupled:
         for t in np.arange(0.0, traj.duration + dt / 2, dt).tolist():
@@ -285,7 +282,7 @@ def _brake(otg: ruckig.Ruckig, robot: Robot, start: JointState, dt: float) -> ru
     traj = _segment(otg, start, start.position, zero, limits, interface_velocity=True)
     if _within(traj, robot, dt):
         return traj
-    end = np.clip(np.array(traj.at_time(traj.duration)[0]), robot.limits.lower, robot.limits.upper)
+    end = robot.limits.clip(np.array(traj.at_time(traj.duration)[0]))
     held = _segment(otg, start, end, zero, limits, synchronise=False)
     return held if _within(held, robot, dt) else traj  # (the safety gate reports the latter)
 

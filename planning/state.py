@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 
@@ -67,7 +68,7 @@ def joint_state(robot: Robot, start: object, field: str = "start") -> JointState
             i = int(np.argmax(over))
             raise BadRequest(f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
                              f"limit {limit[i]:.4g}", field=f"{field}.{what}")
-    return JointState(np.minimum(np.maximum(p, lim.lower), lim.upper), v, a)
+    return JointState(lim.clip(p), v, a)
 
 
 def clamped(robot: Robot, state: JointState) -> JointState:
@@ -77,7 +78,7 @@ def clamped(robot: Robot, state: JointState) -> JointState:
     the nearest state the limits allow. Coupled limits are not moved onto (the planner's gate
     reports a state outside them)."""
     lim = robot.limits
-    p = np.minimum(np.maximum(np.nan_to_num(state.position), lim.lower), lim.upper)
+    p = lim.clip(np.nan_to_num(state.position))
     v = np.clip(np.nan_to_num(state.velocity), -lim.velocity, lim.velocity)
     a = np.clip(np.nan_to_num(state.acceleration), -lim.acceleration, lim.acceleration)
     # on a limit, a joint is not moving on past it (the reading is; the joint cannot)

@@ -146,7 +146,7 @@ def build(robot: Robot, path: str, rate_hz: float, duration: float, times: Float
     lim = robot.limits
     gate = _Gate.of(robot)
     # noise within POSITION_TOL of a box limit is put exactly on it (anything more raises)
-    clipped = np.minimum(np.maximum(position, lim.lower), lim.upper)
+    clipped = lim.clip(position)
     commands = np.empty((len(times), len(gate.b)), dtype=np.int64)
     if not all_clear(position, velocity, acceleration, jerk, position @ gate.C.T, clipped @ gate.M.T + gate.b,
                      gate.joints, gate.couplings, gate.actuators, gate.tolerances, commands):

@@ -10,21 +10,8 @@
 
 from typing import TYPE_CHECKING, Any
 
-# The errors are imported at once (light: the client library and the protocol use them); the
-# rest when first asked for (the catalogue loads Pinocchio: 0.3 s that a client does not need).
-from .errors import (
-    ActuatorMapError,
-    ActuatorRangeError,
-    ArmdError,
-    BadRequest,
-    CoupledLimitError,
-    JointLimitError,
-    LimitError,
-    PositionUnknown,
-    RobotFileError,
-    StartMismatch,
-    UnknownRobot,
-)
+# Its names are imported when first asked for (the catalogue loads Pinocchio: 0.3 s that a
+# client does not need). Its errors are armd.errors'.
 
 if TYPE_CHECKING:
     from .actuators import ActuatorMap, Gripper, Servo, Stepper
@@ -45,7 +32,7 @@ _LAZY = {
 
 
 def __getattr__(name: str) -> Any:
-    """The package's names beyond the errors, imported when first used (PEP 562)."""
+    """The package's names, imported when first used (PEP 562)."""
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -59,26 +46,15 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "CATALOGUE_DIR",
     "ActuatorMap",
-    "ActuatorMapError",
-    "ActuatorRangeError",
-    "ArmdError",
-    "BadRequest",
     "CoupledLimit",
-    "CoupledLimitError",
     "Geometry",
     "Gripper",
-    "JointLimitError",
     "JointLimits",
-    "LimitError",
-    "PositionUnknown",
     "RangeSensor",
     "Robot",
-    "RobotFileError",
     "Servo",
-    "StartMismatch",
     "Stepper",
     "ToolPose",
-    "UnknownRobot",
     "load",
     "load_dir",
     "load_folder",

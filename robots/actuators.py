@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import ActuatorMapError, ActuatorRangeError, BadRequest
+from armd.errors import ActuatorMapError, ActuatorRangeError, BadRequest
+
 from .types import FloatArray
 
 IntArray = NDArray[np.int64]

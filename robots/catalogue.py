@@ -19,8 +19,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from armd.errors import RobotFileError, UnknownRobot
+
 from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
-from .errors import RobotFileError, UnknownRobot
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .robot import Robot

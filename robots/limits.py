@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import CoupledLimitError, JointLimitError
+from armd.errors import CoupledLimitError, JointLimitError, LimitError
+
 from .types import FloatArray
 
 
@@ -98,6 +99,30 @@ class JointLimits:
         errors = self.violations(q, tol)
         if errors:
             raise errors[0]
+
+    def in_box(self, q: FloatArray, tol: float = 1e-9) -> bool:
+        """True when ``q`` is within the box limits (not the coupled ones), to ``tol``."""
+        return bool(np.all((q >= self.lower - tol) & (q <= self.upper + tol)))
+
+    def clip(self, q: FloatArray) -> FloatArray:
+        """``q`` brought into the box limits (each joint to its nearer bound)."""
+        return np.minimum(np.maximum(q, self.lower), self.upper)
+
+    def first_outside(self, qs: FloatArray, tol: float = 1e-9) -> tuple[int, LimitError] | None:
+        """The first row of ``qs`` (shape (m, n), samples in order) outside a box limit, else the
+        first outside a coupled limit (in their order), with the error that names the limit;
+        None if every row is inside, to ``tol``."""
+        bad = (qs < self.lower - tol) | (qs > self.upper + tol)
+        if bad.any():
+            k, j = (int(x) for x in np.argwhere(bad)[0])
+            return k, JointLimitError(self.names[j], float(qs[k, j]), (float(self.lower[j]), float(self.upper[j])))
+        for c in self.coupled:
+            v = qs @ c.coefficients
+            over = (v < c.lower - tol) | (v > c.upper + tol)
+            if over.any():
+                k = int(np.argmax(over))
+                return k, CoupledLimitError(c.name, float(v[k]), (c.lower, c.upper))
+        return None
 
     def contains_batch(self, qs: FloatArray, tol: float = 1e-9) -> NDArray[np.bool_]:
         """Vectorised :meth:`contains` over rows of ``qs``, shape (m, n) -> (m,)."""

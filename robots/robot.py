@@ -16,8 +16,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from armd.errors import BadRequest
+
 from .actuators import ActuatorMap, Gripper
-from .errors import BadRequest
+from .angles import wrap
 from .geometry import Geometry
 from .limits import JointLimits
 from .sensors import RangeSensor
@@ -141,7 +143,7 @@ class Robot:
         return ToolPose(np.array(placement.translation), self._pitch(qa, placement.rotation))
 
     def tool_pitch(self, q: Sequence[float] | FloatArray) -> float:
-        """Angle [rad] of the tool axis (the tool frame's +x) to the horizontal, in (-pi, pi].
+        """Angle [rad] of the tool axis (the tool frame's +x) to the horizontal, in [-pi, pi).
 
         Measured in the arm's vertical plane (forward is the yaw direction), so a tool
         pointing back and down has a pitch beyond -pi/2. 0 is level ("parallel"), -pi/2
@@ -153,9 +155,9 @@ class Robot:
     def _pitch(self, q: FloatArray, rotation: FloatArray) -> float:
         d = rotation[:, 0]
         if self.geometry is None:
-            return math.atan2(d[2], math.hypot(d[0], d[1]))
+            return wrap(math.atan2(d[2], math.hypot(d[0], d[1])))
         yaw = q[self.geometry.yaw]
-        return math.atan2(d[2], d[0] * math.cos(yaw) + d[1] * math.sin(yaw))
+        return wrap(math.atan2(d[2], d[0] * math.cos(yaw) + d[1] * math.sin(yaw)))
 
     def jacobian(self, q: Sequence[float] | FloatArray) -> FloatArray:
         """Jacobian of the tool point [m/rad], shape (3, nq), in ``base`` axes."""

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import BadRequest
+from armd.errors import BadRequest
+
 from .types import FloatArray
 
 

@@ -12,23 +12,7 @@ from __future__ import annotations
 
 import time
 
-from armd.robots import ArmdError
-
-
-class DeadlineExceeded(ArmdError):
-    """The request's deadline passed: nothing was published, no result is given.
-
-    Fields: ``deadline`` (the budget [s]), ``elapsed`` (since arrival [s]) and ``stage``:
-    ``"queued"`` (it waited too long to start; no work was done) or ``"working"`` (it was
-    abandoned part way).
-    """
-
-    code = "deadline"
-
-    def __init__(self, budget: float, elapsed: float, stage: str) -> None:
-        what = "waited in the queue" if stage == "queued" else "was being worked on"
-        super().__init__(f"the request {what} past its deadline of {budget:g} s ({elapsed:.3f} s since it arrived); "
-                         "nothing was done", deadline=budget, elapsed=round(elapsed, 6), stage=stage)
+from armd.errors import DeadlineExceeded
 
 
 class Deadline:

@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from armd import planning, solvers
+from armd.errors import ArmdError, BadRequest, BatchTooLarge, NoAdapter, PositionUnknown, Rejected, StartMismatch
 from armd.planning import JointState
-from armd.robots import ArmdError, BadRequest, PositionUnknown, Robot, StartMismatch
+from armd.robots import Robot
 
 from .deadline import Deadline
 from .protocol import (
@@ -36,8 +37,6 @@ from .protocol import (
     REPORT_POSITION_SLACK,
     REPORT_SPEED_SLACK,
     Limits,
-    NoAdapter,
-    Rejected,
     check,
 )
 from .state import StateBook
@@ -149,8 +148,7 @@ class Handlers:
         try:
             traj = planning.plan_stop(arm, known.state, clamp=True)
         except ArmdError:  # (an estimate only: the adapters brake from their own states)
-            traj = planning.plan_stop(arm, JointState.at_rest(np.clip(known.state.position, arm.limits.lower,
-                                                                      arm.limits.upper)), clamp=True)
+            traj = planning.plan_stop(arm, JointState.at_rest(arm.limits.clip(known.state.position)), clamp=True)
         self.book.commanded(arm.name, traj)
         return {"id": ident, "duration": traj.duration, "adapters": self.adapters(arm),
                 "rest": traj.position[-1].tolist()}
@@ -209,10 +207,4 @@ def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
     return JointState(q, v, a)
 
 
-class BatchTooLarge(BadRequest):
-    code = "too_large"
-
-    def __init__(self, size: int, limit: int) -> None:
-        super().__init__(f"{size} targets; this service accepts at most {limit} per request", field="targets",
-                         size=size, limit=limit)
 

@@ -1,8 +1,8 @@
 """The JSON protocol (version 1): request validation and reply shapes, independent of Zenoh.
 
 Every request is a JSON object; every reply is a JSON object. A bad request raises
-:class:`robots.BadRequest` naming the ``field`` by its path (``start.jerk``, ``q[1]``,
-``via[0].target``); the service turns any :class:`robots.ArmdError` into an error reply
+:class:`BadRequest` naming the ``field`` by its path (``start.jerk``, ``q[1]``,
+``via[0].target``); the service turns any :class:`ArmdError` into an error reply
 ``{"code", "message", ...}`` in one place. Each verb's request has a shape here (``FK``,
 ``IK_ONE``, ``IK_BATCH``, ``PLAN``, ``MOVE``, ``GRIPPER``, ``NOTHING``), checked whole
 before anything is solved: unknown keys at every level, numbers that are JSON numbers
@@ -20,7 +20,7 @@ from typing import Any
 
 import orjson
 
-from armd.robots import ArmdError, BadRequest
+from armd.errors import ArmdError, BadRequest, PayloadTooLarge
 
 PROTOCOL_VERSION = 1
 VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper")
@@ -106,32 +106,14 @@ REPORT_POSITION_SLACK = 0.05  # [rad] a reported position may be this far outsid
 REPORT_SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
 
 
-class PayloadTooLarge(ArmdError):
-    code = "too_large"
-
-    def __init__(self, size: int, limit: int) -> None:
-        super().__init__(f"the payload is {size} bytes; this service accepts at most {limit}", size=size, limit=limit)
 
 
-class UnknownVerb(ArmdError):
-    code = "unknown_verb"
-
-    def __init__(self, verb: str) -> None:
-        super().__init__(f"unknown verb {verb!r}; verbs: {', '.join(VERBS)}", verb=verb, verbs=list(VERBS))
 
 
-class NoAdapter(ArmdError):
-    code = "no_adapter"
 
 
-class Rejected(ArmdError):
-    """Every live adapter of the arm refused the trajectory (``reason``: the last one's word)."""
-
-    code = "rejected"
 
 
-class Internal(ArmdError):
-    code = "internal"
 
 
 def encode(obj: Mapping[str, Any]) -> bytes:

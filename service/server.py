@@ -45,24 +45,13 @@ import numpy as np
 import orjson
 import zenoh
 
+from armd.errors import ArmdError, DeadlineExceeded, Internal, NoAdapter, Rejected, UnknownRobot, UnknownVerb
 from armd.planning import JointState
-from armd.robots import ArmdError, Robot, UnknownRobot
+from armd.robots import Robot
 
-from .deadline import Deadline, DeadlineExceeded
+from .deadline import Deadline
 from .handlers import Handlers
-from .protocol import (
-    REPORT_POSITION_SLACK,
-    REPORT_SPEED_SLACK,
-    VERBS,
-    Internal,
-    Limits,
-    NoAdapter,
-    Rejected,
-    UnknownVerb,
-    decode,
-    encode,
-    request_deadline,
-)
+from .protocol import REPORT_POSITION_SLACK, REPORT_SPEED_SLACK, VERBS, Limits, decode, encode, request_deadline
 from .state import StateBook
 
 log = logging.getLogger(__name__)
@@ -251,13 +240,13 @@ class Service:
         if parts == ["robots"]:
             return None, "robots"
         if len(parts) != 2:
-            raise UnknownVerb(rest)
+            raise UnknownVerb(rest, VERBS)
         name, verb = parts
         arm = self.arms.get(name)
         if arm is None:
             raise UnknownRobot(name, self.arms)
         if verb not in VERBS:
-            raise UnknownVerb(verb)
+            raise UnknownVerb(verb, VERBS)
         return arm, verb
 
     @staticmethod

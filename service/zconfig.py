@@ -13,7 +13,7 @@ from pathlib import Path
 
 import zenoh
 
-from armd.robots import BadRequest
+from armd.errors import BadRequest
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 

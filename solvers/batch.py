@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest
+from armd.robots import Robot
+from armd.robots.angles import wrap_array
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_many
@@ -156,7 +158,7 @@ def solve_ik_batch(
         pitch_out[good] = 0.0
     else:  # the family's tool pitch: the sum of the pitch joints
         pitch_sum = q[good][:, [int(j) for j in fp.J[1:] if j >= 0]].sum(axis=1)
-        pitch_out[good] = np.remainder(pitch_sum + math.pi, 2 * math.pi) - math.pi
+        pitch_out[good] = wrap_array(pitch_sum)
     for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
         if check is not None:
             check()

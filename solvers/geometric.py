@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots import Robot
+from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
 from .jit import jit
@@ -73,10 +74,7 @@ class FamilyParams:
         return cls(P, J, robot.nq)
 
 
-@jit
-def wrap_angle(x: float) -> float:
-    """``x`` wrapped into [-pi, pi) [rad]."""
-    return x - TWO_PI * math.floor(x / TWO_PI + 0.5)
+wrap_angle = jit(wrap)  # (armd.robots.angles' wrap, compiled: [-pi, pi))
 
 
 @jit

@@ -34,7 +34,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest
+from armd.robots import Robot
+from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, pack, packed_outputs, solve_packed
@@ -191,7 +193,7 @@ def _pose(arm: _Arm, q: FloatArray) -> tuple[FloatArray, float]:
     g = arm.robot.geometry
     assert g is not None
     ql = q.tolist()
-    pitch = 0.0 if g.level else math.remainder(sum(map(ql.__getitem__, fp.pitch_joints)), TWO_PI)
+    pitch = 0.0 if g.level else wrap(sum(map(ql.__getitem__, fp.pitch_joints)))
     return reached, pitch
 
 
@@ -199,7 +201,7 @@ def _result(arm: _Arm, status: str, chosen: Branch, others: list[Branch], point:
             asked_pitch: float | None, iterations: int, reason: str | None) -> IKResult:
     """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the check)."""
     reached, pitch = _pose(arm, chosen.q)
-    pitch_error = None if asked_pitch is None else math.remainder(pitch - asked_pitch, TWO_PI)
+    pitch_error = None if asked_pitch is None else wrap(pitch - asked_pitch)
     return IKResult(
         status=status, q=chosen.q, position_error=_dist(reached, point), reached=reached,
         target=point, pitch=pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
@@ -249,11 +251,11 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
     if arm.exact and errs[0] <= tolerance:
         # the formula is the URDF's FK (checked against Pinocchio when the arm was first seen), so
         # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage
-        reached_pitch = math.remainder(pitch_sum, TWO_PI)
+        reached_pitch = wrap(pitch_sum)
         others = tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
         return IKResult(  # (positional: the fields' order, status to reason)
             status, qs[0], errs[0], b.reached.copy(), point, reached_pitch,
-            None if pitch is None else math.remainder(reached_pitch - pitch, TWO_PI),
+            None if pitch is None else wrap(reached_pitch - pitch),
             names[0], others, 0, None if status == OK else reason)
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and refined by the QP where it misses

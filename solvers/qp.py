@@ -26,7 +26,9 @@ import daqp
 import numpy as np
 import pinocchio as pin
 
-from armd.robots import ArmdError, Robot
+from armd.errors import QPError
+from armd.robots import Robot
+from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
 _LOCAL = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -43,8 +45,6 @@ class Refined:
     iterations: int
 
 
-class QPError(ArmdError):
-    """The QP backend failed on a step (a numerical failure, reported as ``internal``)."""
 
 
 class QPRefiner:
@@ -73,11 +73,11 @@ class QPRefiner:
 
     def project(self, q: FloatArray) -> FloatArray:
         """The point of the limit set (box and coupled) nearest ``q`` [rad]."""
-        inside = np.clip(q, self.lower, self.upper)
+        inside = self.robot.limits.clip(q)
         if not len(self.C) or self.robot.limits.contains(inside):
             return inside
         dq = self._qp(np.eye(self.n), inside - q, inside)
-        return np.clip(inside + dq, self.lower, self.upper)
+        return self.robot.limits.clip(inside + dq)
 
     def _qp(self, H: FloatArray, f: FloatArray, q: FloatArray, step: float = math.inf) -> FloatArray:
         lo = np.maximum(self.lower - q, -step)
@@ -105,7 +105,7 @@ class QPRefiner:
         e = target - p
         perr = 0.0
         if pitch is not None and self.pitch_row is not None:
-            perr = math.remainder(pitch - float(self.pitch_row @ q), 2 * math.pi)
+            perr = wrap(pitch - float(self.pitch_row @ q))
         cost = float(e @ e) + w2 * perr * perr
         J = pin.getFrameJacobian(self.model, data, self.fid, _LOCAL)[:3] if jacobian else None
         return cost, e, perr, J
@@ -151,7 +151,7 @@ class QPRefiner:
                 Hd = H.copy()
                 Hd[np.diag_indices_from(Hd)] += mu
                 dq = self._qp(Hd, -g, q, self.step)
-                q_new = np.clip(q + dq, self.lower, self.upper)
+                q_new = self.robot.limits.clip(q + dq)
                 cost_new, e_new, perr_new, _ = self._evaluate(q_new, target, ptarget, w2, False)
                 if cost_new < cost:
                     accepted = True

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 _FLOAT64 = np.dtype(np.float64)  # native float64: ``is`` against it is the quick check

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from armd import robots
+from armd.errors import ActuatorMapError, ActuatorRangeError, BadRequest
 from tests.test_fk import random_in_limits
 
 
@@ -77,15 +78,15 @@ def test_commands_outside_range_are_errors_not_clamped() -> None:
     arm = robots.load("insomniac")
     q = arm.neutral.copy()
     q[0] = math.pi / 2 + 0.05  # yaw past its limit: pulse would be > 2500
-    with pytest.raises(robots.ActuatorRangeError) as e:
+    with pytest.raises(ActuatorRangeError) as e:
         arm.actuators.commands(q)
     assert e.value.name == "base_yaw"
     arm_d = robots.load("desk4")
-    with pytest.raises(robots.ActuatorRangeError) as e:
+    with pytest.raises(ActuatorRangeError) as e:
         arm_d.actuators.commands(np.array([0.0, 1.9, -0.5]))  # minor servo angle 1.4 > linkage's 0.9
     assert e.value.name == "minor"
     steps = robots.load("gupta3").actuators
-    with pytest.raises(robots.ActuatorRangeError):
+    with pytest.raises(ActuatorRangeError):
         steps.commands(np.array([0.0, 3.3, -1.0]))
 
 
@@ -93,9 +94,9 @@ def test_mirrored_pair_that_disagrees_is_an_error() -> None:
     amap = robots.load("sg5ut").actuators
     cmds = amap.commands(robots.load("sg5ut").neutral).astype(float)
     cmds[2] += 40  # the mirrored servo reports something else
-    with pytest.raises(robots.ActuatorMapError):
+    with pytest.raises(ActuatorMapError):
         amap.joints_from_commands(cmds)
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         amap.joints_from_commands(cmds[:3])
 
 
@@ -104,5 +105,5 @@ def test_gripper_pulses() -> None:
     assert g is not None
     assert (g.pulse(0.0), g.pulse(1.0), g.pulse(0.5)) == (1000, 2000, 1500)
     for bad in (-0.1, 1.5, float("nan"), True, "0.5"):
-        with pytest.raises(robots.BadRequest):
+        with pytest.raises(BadRequest):
             g.pulse(bad)

@@ -16,11 +16,11 @@ import pytest
 import zenoh
 
 from armd import robots
-from armd.adapters.base import ControllerFault
 from armd.adapters.emulators.grbl import GrblEmulator
 from armd.adapters.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_motion, span
 from armd.adapters.grbl import GrblAdapter
-from armd.clients import ArmClient, ServiceError
+from armd.clients import ArmClient
+from armd.errors import ControllerFault, ServiceError
 from tests.conftest import collect, wait_for
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)

@@ -22,7 +22,8 @@ from armd.adapters.emulators.measure import ratios as _ratios
 from armd.adapters.emulators.process import EmulatorProcess
 from armd.adapters.emulators.ssc32 import SSC32Emulator
 from armd.adapters.ssc32 import SSC32Adapter
-from armd.clients import ArmClient, ServiceError
+from armd.clients import ArmClient
+from armd.errors import ServiceError
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
@@ -174,7 +175,7 @@ def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Sessio
     """Servo arms to the GRBL adapter, stepper arms to the SSC-32's: refused before any port
     is opened, naming what the adapter drives."""
     from armd.adapters.grbl import GrblAdapter
-    from armd.robots import BadRequest
+    from armd.errors import BadRequest
 
     with pytest.raises(BadRequest) as e:
         SSC32Adapter(adapter_session, robots.load("gupta3"), "/dev/nonexistent-ssc32")

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from armd import robots
+from armd.errors import BadRequest
 from armd.solvers import solve_ik, solve_ik_batch
 from tests.test_fk import random_in_limits
 
@@ -50,9 +51,9 @@ def test_batch_with_a_pitch_per_target(name: str) -> None:
         assert batch.status[i] == single.status
         assert np.allclose(batch.q[i], single.q, atol=1e-12)
     assert {"ok", "approximate"} <= set(batch.status.tolist())
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         solve_ik_batch(arm, targets, approach=pitches[:-1])
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         solve_ik_batch(arm, targets[:1], approach=[7.0])
 
 
@@ -80,5 +81,5 @@ def test_batch_with_seeds() -> None:
     ],
 )
 def test_batch_bad_input(targets: object, kwargs: dict[str, object]) -> None:
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         solve_ik_batch(robots.load("gupta3"), targets, **kwargs)  # type: ignore[arg-type]

@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 
 from armd import robots
+from armd.errors import RobotFileError, UnknownRobot
 
 
 def test_load_is_cached_and_unknown_names_list_the_catalogue() -> None:
     assert robots.load("gupta3") is robots.load("gupta3")
-    with pytest.raises(robots.UnknownRobot) as e:
+    with pytest.raises(UnknownRobot) as e:
         robots.load("gupta4")
     assert e.value.available == robots.names()
     assert "gupta3" in str(e.value)
@@ -33,9 +34,9 @@ def test_user_folder_adds_an_arm_with_data_only(arm_copy: Callable[..., Path], t
 
 
 def test_load_dir_errors(tmp_path: Path) -> None:
-    with pytest.raises(robots.RobotFileError):
+    with pytest.raises(RobotFileError):
         robots.load_dir(tmp_path / "missing")
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_dir(tmp_path)
     assert "holds no arm" in str(e.value)
 
@@ -84,7 +85,7 @@ BAD_TOML = [
 @pytest.mark.parametrize(("arm", "old", "new", "field", "words"), BAD_TOML)
 def test_bad_robot_toml(arm_copy: Callable[..., Path], arm: str, old: str, new: str, field: str, words: str) -> None:
     folder = arm_copy(arm, toml_edits=[(old, new)])
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_folder(folder)
     assert e.value.file.endswith("robot.toml")
     assert e.value.field == field, str(e.value)
@@ -93,14 +94,14 @@ def test_bad_robot_toml(arm_copy: Callable[..., Path], arm: str, old: str, new: 
 
 def test_invalid_toml_syntax(arm_copy: Callable[..., Path]) -> None:
     folder = arm_copy("gupta3", toml_edits=[("[joints.elbow]", "[joints.elbow")])
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_folder(folder)
     assert "not valid TOML" in e.value.problem and "line" in e.value.problem
 
 
 def test_broken_urdf_names_the_urdf(arm_copy: Callable[..., Path]) -> None:
     folder = arm_copy("gupta3", urdf_edits=[("</robot>", "")])
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_folder(folder)
     assert e.value.file.endswith("robot.urdf")
     assert "Pinocchio cannot load it" in e.value.problem
@@ -108,7 +109,7 @@ def test_broken_urdf_names_the_urdf(arm_copy: Callable[..., Path]) -> None:
 
 def test_urdf_without_velocity_limit(arm_copy: Callable[..., Path]) -> None:
     folder = arm_copy("gupta3", urdf_edits=[('velocity="0.8"', 'velocity="0"')])
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_folder(folder)
     assert e.value.field == "joints.shoulder.velocity"
 
@@ -121,6 +122,6 @@ def test_toml_may_override_urdf_limits(arm_copy: Callable[..., Path]) -> None:
 
 
 def test_missing_toml(tmp_path: Path) -> None:
-    with pytest.raises(robots.RobotFileError) as e:
+    with pytest.raises(RobotFileError) as e:
         robots.load_folder(tmp_path)
     assert "not found" in str(e.value)

@@ -8,7 +8,7 @@ import importlib
 
 import pytest
 
-MODULES = ["armd.robots", "armd.solvers", "armd.planning", "armd.clients.client"]
+MODULES = ["armd.robots", "armd.robots.angles", "armd.solvers", "armd.planning", "armd.clients.client", "armd.errors"]
 
 
 @pytest.mark.parametrize("name", MODULES)

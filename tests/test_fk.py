@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from armd import robots
+from armd.errors import BadRequest
 
 N = 3000
 c, s = math.cos, math.sin
@@ -174,7 +175,7 @@ def test_gripper_sensor_looks_along_the_tool_axis() -> None:
 )
 def test_bad_sensor_readings(sensor: str, distance: float, bearing: float, field: str) -> None:
     arm = robots.load("insomniac")
-    with pytest.raises(robots.BadRequest) as e:
+    with pytest.raises(BadRequest) as e:
         arm.sensor_point(sensor, distance, bearing)
     assert e.value.field == field
 
@@ -183,5 +184,5 @@ def test_joint_vector_validation() -> None:
     arm = robots.load("gupta3")
     assert arm.joint_vector([0, 1, -1]).tolist() == [0.0, 1.0, -1.0]
     for bad in ([0, 1], [0, 1, float("nan")], "abc", [[0, 1, 2]], None, [0, "x", 1]):
-        with pytest.raises(robots.BadRequest):
+        with pytest.raises(BadRequest):
             arm.joint_vector(bad)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from armd import robots, solvers
+from armd.errors import BadRequest
 from armd.solvers import SensorReading, solve_ik
 from tests.test_fk import random_in_limits
 
@@ -261,7 +262,7 @@ BAD = [
 def test_bad_input_raises_the_typed_error(name: str, kwargs: dict[str, object], field: str) -> None:
     arm = robots.load(name)
     target = kwargs.pop("target")
-    with pytest.raises(robots.BadRequest) as e:
+    with pytest.raises(BadRequest) as e:
         solve_ik(arm, target, **kwargs)  # type: ignore[arg-type]
     assert e.value.field == field
     assert e.value.code == "bad_request"

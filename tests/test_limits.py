@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from armd import robots
+from armd.errors import CoupledLimitError, JointLimitError
 
 
 def test_desk4_coupled_limit_rejects_what_it_must() -> None:
@@ -18,7 +19,7 @@ def test_desk4_coupled_limit_rejects_what_it_must() -> None:
     for q in inside_box_outside_linkage:
         assert np.all(q >= lim.lower) and np.all(q <= lim.upper)
         assert not lim.contains(q)
-        with pytest.raises(robots.CoupledLimitError) as e:
+        with pytest.raises(CoupledLimitError) as e:
             lim.check(q)
         assert e.value.name == "linkage"
         assert e.value.code == "limit"
@@ -42,7 +43,7 @@ def test_coupled_limit_edges_are_inclusive() -> None:
 def test_box_limit_error_names_the_joint() -> None:
     lim = robots.load("insomniac").limits
     q = np.array([0.0, 0.1, -1.0, 0.0, 0.0])  # shoulder below 0.26
-    with pytest.raises(robots.JointLimitError) as e:
+    with pytest.raises(JointLimitError) as e:
         lim.check(q)
     assert e.value.name == "shoulder"
     assert e.value.bounds == (0.26, 2.88)
@@ -68,3 +69,24 @@ def test_limits_from_robots_md() -> None:
     assert lim.jerk.tolist() == [60.0, 40.0, 50.0, 80.0, 80.0]
     g = robots.load("gupta3").limits
     assert np.allclose(g.lower, [-np.pi, 0.0, -2.8]) and np.allclose(g.upper, [np.pi, np.pi, 0.0])
+
+
+def test_the_one_limits_helper_agrees_with_itself() -> None:
+    """clip, in_box, first_outside, contains and contains_batch: one idea of "within the
+    limits", the one the planner's gate, the solver and the adapters use."""
+    arm = robots.load("desk4")
+    lim = arm.limits
+    rng = np.random.default_rng(1)
+    qs = rng.uniform(lim.lower - 0.3, lim.upper + 0.3, size=(400, arm.nq))
+    inside = lim.contains_batch(qs)
+    assert inside.any() and not inside.all()
+    for q, ok in zip(qs, inside, strict=True):
+        assert lim.contains(q) == ok
+        assert lim.in_box(lim.clip(q)) and (lim.in_box(q) == np.array_equal(lim.clip(q), q))
+        assert (lim.first_outside(q[None]) is None) == ok
+    k, err = lim.first_outside(qs)  # type: ignore[misc]
+    assert not inside[k]
+    assert isinstance(err, (JointLimitError, CoupledLimitError)) and err.code == "limit"
+    box_ok = np.array([lim.in_box(q) for q in qs])
+    if not box_ok.all():  # a box violation is named before any coupled one
+        assert isinstance(err, JointLimitError) and k == int(np.argmin(box_ok))

@@ -10,7 +10,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from armd import planning, robots
-from armd.planning import JointState, PlanRejected, plan, plan_stop
+from armd.errors import ActuatorRangeError, BadRequest, JointLimitError, LimitError, PlanRejected
+from armd.planning import JointState, plan, plan_stop
 
 ARMS = ["insomniac", "sg5ut", "gupta3", "desk4"]
 SETTINGS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -186,18 +187,18 @@ def test_safety_gate_names_joint_time_and_value() -> None:
     tr = plan(arm, arm.neutral, [0.5, 1.0, -1.2])
     pos = tr.position.copy()
     pos[7, 2] = 0.3  # elbow above its upper limit 0
-    with pytest.raises(robots.JointLimitError) as e:
+    with pytest.raises(JointLimitError) as e:
         planning.check_samples(arm, tr.times, pos, tr.velocity, tr.acceleration, tr.jerk)
     assert e.value.name == "elbow" and e.value.time == pytest.approx(tr.times[7]) and e.value.value == 0.3
     vel = tr.velocity.copy()
     vel[3, 0] = 1.5  # base_yaw vmax is 1.0
-    with pytest.raises(robots.LimitError) as e:
+    with pytest.raises(LimitError) as e:
         planning.check_samples(arm, tr.times, tr.position, vel, tr.acceleration, tr.jerk)
     assert e.value.kind == "velocity" and e.value.name == "base_yaw" and e.value.time == pytest.approx(tr.times[3])
     ins = robots.load("insomniac")
     bad = np.tile(ins.neutral, (3, 1))
     bad[1, 0] = math.pi / 2 + 0.01
-    with pytest.raises(robots.ActuatorRangeError) as e:
+    with pytest.raises(ActuatorRangeError) as e:
         planning.actuator_commands(ins, np.array([0.0, 0.02, 0.04]), bad)
     assert e.value.time == pytest.approx(0.02)
 
@@ -229,7 +230,7 @@ def test_bad_plan_requests(change: dict[str, object], field: str) -> None:
     args: dict[str, object] = {"start": [0.0, 1.0, -1.0], "goal": [0.5, 1.2, -1.3]}
     args.update(change)
     start, goal = args.pop("start"), args.pop("goal")
-    with pytest.raises(robots.BadRequest) as e:
+    with pytest.raises(BadRequest) as e:
         plan(arm, start, goal, **args)  # type: ignore[arg-type]
     assert e.value.field == field, e.value.message
 
@@ -271,16 +272,16 @@ def test_compiled_gate_never_passes_what_the_checks_refuse(name: str) -> None:
         try:
             planning.check_samples(arm, tr.times, pos, vel, acc, jerk)
             expected = "ok"
-        except robots.LimitError as e:
+        except LimitError as e:
             expected = f"{type(e).__name__} {e.message}"
         if expected == "ok":
             try:
                 planning.actuator_commands(arm, tr.times, np.clip(pos, lim.lower, lim.upper))
-            except robots.LimitError as e:
+            except LimitError as e:
                 expected = f"{type(e).__name__} {e.message}"
         try:
             out = build(arm, "joint", tr.rate_hz, tr.duration, tr.times, pos, vel, acc, tr.evaluator, jerk=jerk)
-        except robots.LimitError as e:
+        except LimitError as e:
             assert f"{type(e).__name__} {e.message}" == expected
             return "refused"
         assert expected == "ok", expected

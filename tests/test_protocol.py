@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from armd.robots import BadRequest
+from armd.errors import BadRequest
 from armd.service.protocol import Limits, _depth, allowed, decode
 
 scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=False, allow_infinity=False) \

@@ -7,6 +7,7 @@ import pytest
 import ruckig
 
 from armd import planning, robots
+from armd.errors import BadRequest, LimitError
 from armd.planning import JointState
 from armd.planning.ruckig_path import Limits, RuckigPath, _segment, joint_path, stop_path
 from tests.test_fk import random_in_limits
@@ -57,8 +58,8 @@ def test_nan_samples_are_caught_by_the_safety_gate() -> None:
     tr = planning.plan(arm, arm.neutral, [0.4, 1.1, -1.2])
     pos = tr.position.copy()
     pos[4, 1] = np.nan
-    with pytest.raises(robots.LimitError) as e:
+    with pytest.raises(LimitError) as e:
         planning.check_samples(arm, tr.times, pos, tr.velocity, tr.acceleration, tr.jerk)
     assert e.value.name == "shoulder" and "not a number" in e.value.message
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         arm.actuators.commands(pos)

@@ -14,7 +14,8 @@ import zenoh
 
 from armd import robots, solvers
 from armd.adapters.sim import SimAdapter
-from armd.clients import ArmClient, NoReply
+from armd.clients import ArmClient
+from armd.errors import NoReply
 from armd.service.server import Service
 from armd.service.zconfig import network_config
 from tests.conftest import free_port, wait_for

@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from armd import robots
-from armd.clients import ArmClient, ServiceError
+from armd.clients import ArmClient
+from armd.errors import ServiceError
 from tests.conftest import free_port
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)

@@ -13,8 +13,8 @@ import zenoh
 
 from armd import robots, solvers
 from armd.adapters.sim import SimAdapter
-from armd.clients import ArmClient, ServiceError
-from armd.robots import ArmdError
+from armd.clients import ArmClient
+from armd.errors import ArmdError, ServiceError
 from tests.conftest import collect
 from tests.test_fk import random_in_limits
 

@@ -17,8 +17,8 @@ import zenoh
 
 from armd import robots
 from armd.adapters.sim import SimAdapter
-from armd.clients import ArmClient, ServiceError
-from armd.robots import BadRequest
+from armd.clients import ArmClient
+from armd.errors import BadRequest, ServiceError
 from armd.service.protocol import Limits
 from armd.service.server import Service
 from armd.service.zconfig import network_config

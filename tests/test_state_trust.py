@@ -13,7 +13,8 @@ import zenoh
 
 from armd import robots
 from armd.adapters.sim import SimAdapter
-from armd.clients import ArmClient, ServiceError
+from armd.clients import ArmClient
+from armd.errors import ServiceError
 from armd.service.server import ACCEPT_TIMEOUT
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for

@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from armd.clients import ArmClient
+from armd.errors import BadRequest
 from armd.planning.plan import PATHS
-from armd.robots import BadRequest
 from armd.service.protocol import APPROACH_WORDS, FK, IK_ONE, PATH_WORDS, PLAN, check, real
 from armd.solvers.target import APPROACHES
 

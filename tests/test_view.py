@@ -28,9 +28,10 @@ from numpy.typing import NDArray
 
 from armd import planning, robots
 from armd.adapters.sim import SimAdapter
+from armd.errors import BadRequest, ViewerError
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
-from armd.tools.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ViewerError, ZenohFeed
+from armd.tools.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ZenohFeed
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -239,11 +240,11 @@ def test_a_taken_port_is_a_clear_error() -> None:
 
 def test_bad_input_is_refused(insomniac_view: tuple[ArmView, ZenohFeed]) -> None:
     view, _ = insomniac_view
-    with pytest.raises(robots.BadRequest, match="must have 5 values"):
+    with pytest.raises(BadRequest, match="must have 5 values"):
         view.show_state([0.0, 1.0])
-    with pytest.raises(robots.BadRequest, match=r"must be \(k, 5\)"):
+    with pytest.raises(BadRequest, match=r"must be \(k, 5\)"):
         view.show_trajectory([[0.0, 1.0, 2.0]])
-    with pytest.raises(robots.BadRequest, match="target must be 3 finite numbers"):
+    with pytest.raises(BadRequest, match="target must be 3 finite numbers"):
         view.show_trajectory([view.robot.neutral], target=[0.1, float("nan"), 0.2])
 
 

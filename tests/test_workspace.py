@@ -14,6 +14,7 @@ import pytest
 
 from armd import robots, solvers
 from armd.cli import main
+from armd.errors import BadRequest
 from armd.tools import workspace
 from armd.tools.workspace import AREA_A, AREA_B, BACKGROUND, Drawn
 
@@ -111,7 +112,7 @@ def test_reachable_matches_the_batch_statuses() -> None:
         mask = solvers.reachable(arm, pts)
         assert np.array_equal(mask, solvers.solve_ik_batch(arm, pts).status == "ok")
         assert 0 < mask.sum() < len(mask)
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         solvers.reachable(robots.load("gupta3"), [[0.1, 0.0, 0.1]], approach="parallel")
-    with pytest.raises(robots.BadRequest):
+    with pytest.raises(BadRequest):
         solvers.reachable(robots.load("sg5ut"), [[0.1, 0.0, float("nan")]])

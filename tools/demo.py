@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 
 from armd import robots, solvers
-from armd.clients import ArmClient, ServiceError, TrajectoryReply
-from armd.robots import BadRequest, Robot
+from armd.clients import ArmClient, TrajectoryReply
+from armd.errors import BadRequest, ServiceError, UnknownRobot
+from armd.robots import Robot
 
 from .plot import plot_reply
 
@@ -187,7 +188,7 @@ def run(names: Sequence[str], out: Path, *, time_scale: float = 2.0, workspace_s
     chosen = list(names) or list(arms)
     for name in chosen:
         if name not in arms:
-            raise robots.UnknownRobot(name, arms)
+            raise UnknownRobot(name, arms)
     out.mkdir(parents=True, exist_ok=True)
     endpoint = free_endpoint()
     started = time.perf_counter()

@@ -30,7 +30,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from armd.robots import ArmdError, BadRequest, Robot
+from armd.errors import ArmdError, BadRequest, ViewerError
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 if sys.version_info >= (3, 11):
@@ -56,10 +57,6 @@ MAX_PATH_POINTS = 400  # a long trajectory's tool path is drawn through at most 
 ZMQ_TIMEOUT_MS = 5000
 
 
-class ViewerError(ArmdError):
-    """The viewer cannot start (its port is taken, meshcat is missing) or lost its server."""
-
-    code = "viewer"
 
 
 # -- the meshcat server, in a thread of this process ---------------------------------------------

@@ -21,7 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd import solvers
-from armd.robots import BadRequest, Robot
+from armd.errors import BadRequest
+from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 BoolArray = NDArray[np.bool_]
