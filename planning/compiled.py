@@ -22,14 +22,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
-from armd.solvers.jit import jit
+from armd.solvers.jit import entry
 
 IntArray = NDArray[np.int64]
 
 MARGIN = 1e-12  # [rad, rad/s ...]: all_clear is stricter than the checks by this much
 
 
-@jit
+@entry("void(f8[:, :, :, :], f8[:], f8[:], f8[:], f8, f8[:, :], f8[:, :], f8[:, :], f8[:, :])")
 def evaluate(tables: FloatArray, seg_starts: FloatArray, seg_durations: FloatArray, times: FloatArray,
              dt: float, P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray) -> None:
     """Fill P, V, A (samples x dofs) at ``times`` (clamped to the path), and Jk with
@@ -78,7 +78,8 @@ def evaluate(tables: FloatArray, seg_starts: FloatArray, seg_durations: FloatArr
             Jk[i, d] = (A[i + 1, d] - A[i, d]) / dt if i + 1 < n else 0.0
 
 
-@jit
+@entry("b1(f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], "
+       "f8[:, :], f8[:], i8[:, :])")
 def all_clear(P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray, coupled: FloatArray,
               angles: FloatArray, joints: FloatArray, couplings: FloatArray, actuators: FloatArray,
               tolerances: FloatArray, commands: IntArray) -> bool:

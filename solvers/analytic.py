@@ -18,7 +18,7 @@ from armd.robots.types import FloatArray
 
 from .family import configs_at, formula_errors, rank_by_distance
 from .geometric import family_fk
-from .jit import jit
+from .jit import entry, jit
 from .pitch import BOUNDARY_TOL, boundary_pitch, grid_pitch
 
 IntArray = NDArray[np.int64]
@@ -105,7 +105,7 @@ def packed_outputs(n: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArr
     return out, out[:4 * n].reshape(4, n), out[4 * n:4 * n + 4], out[4 * n + 4:]
 
 
-@jit
+@entry("Tuple((i8, i8, f8, f8))(f8[::1], i8[:], f8[:], f8[:], f8[:], f8[::1], i8[:], f8[:, :])")  # (K, out: reshaped)
 def solve_packed(K: FloatArray, JI: IntArray, ref: FloatArray, point: FloatArray, prefs: FloatArray,
                  out: FloatArray, ids: IntArray, work: FloatArray) -> tuple[int, int, float, float]:
     """:func:`solve_point` with the arm's arrays packed by :func:`pack` and the outputs in one
@@ -125,7 +125,8 @@ def solve_packed(K: FloatArray, JI: IntArray, ref: FloatArray, point: FloatArray
                        prefs, out[:4 * n].reshape((4, n)), ids, out[4 * n:4 * n + 4], work, out[4 * n + 4:4 * n + 7])
 
 
-@jit
+@entry("void(f8[:], i8[:], f8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], b1, f8[:, :], "
+       "f8[:, :], f8[:, :], f8[:, :], i8[:], f8[:], i8[:], f8[:], f8[:, :])")
 def solve_many(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, weights: FloatArray,
                C: FloatArray, clo: FloatArray, chi: FloatArray, exact_pitch_search: bool, refs: FloatArray,
                points: FloatArray, prefs: FloatArray, q_out: FloatArray, code_out: IntArray,

@@ -23,7 +23,7 @@ from armd.robots.types import FloatArray
 from .activeset import solve_qp
 from .analytic import NONE, solve_one
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
-from .jit import jit
+from .jit import entry, jit
 from .limits import limits_ok
 
 IntArray = NDArray[np.int64]
@@ -680,7 +680,8 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
-@jit
+@entry("Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, "
+       "f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])")
 def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
                    clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool,
                    target: FloatArray, pitch: float, w2: float, ref: FloatArray, atlas_q: FloatArray,

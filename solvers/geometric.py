@@ -24,15 +24,18 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from armd.robots import Robot
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
-from .jit import jit
+from .jit import entry, jit
+
+if TYPE_CHECKING:  # (not at run time: the native build imports this file without Pinocchio)
+    from armd.robots import Robot
 
 IntArray = NDArray[np.int64]
 
@@ -123,7 +126,7 @@ def two_link(p: float, q: float, tx: float, ty: float, out: FloatArray) -> int:
     return count
 
 
-@jit
+@entry("i8(f8[:], b1, f8, f8, f8, f8, f8[:, :])")
 def branches(P: FloatArray, has_wrist: bool, x: float, y: float, z: float, phi: float, out: FloatArray) -> int:
     """Every branch for target (x, y, z) [m] and tool pitch ``phi`` [rad] (ignored without a wrist).
 
@@ -179,7 +182,7 @@ def branches(P: FloatArray, has_wrist: bool, x: float, y: float, z: float, phi: 
     return count
 
 
-@jit
+@entry("void(f8[:], i8[:], f8[:], f8[:])")
 def family_fk(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) -> None:
     """Tool point [m] by the family's formula (:mod:`robots.geometry`) into ``out`` (3,)."""
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]

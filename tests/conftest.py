@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
+import os
+
+# Every call into the native build is checked against its signature (armd.solvers.jit), in this
+# process and the ones it starts: a caller passing the wrong arrays fails a test, not silently.
+os.environ.setdefault("ARMD_NATIVE_CHECK", "1")
+
 import shutil
 from collections.abc import Callable
 from pathlib import Path
