@@ -28,8 +28,11 @@ class BuildNative(build_ext):
             return
         done = subprocess.run([sys.executable, str(ROOT / "solvers" / "build.py"), str(target)], cwd=ROOT)
         if done.returncode != 0:
-            print("armd: warning: the native module could not be built; armd will compile its code with Numba "
-                  "on first use (about a minute, once)", file=sys.stderr)
+            print(
+                "armd: warning: the native module could not be built; armd will compile its code with Numba "
+                "on first use (about a minute, once)",
+                file=sys.stderr,
+            )
 
 
 setup(ext_modules=[Extension(NATIVE, sources=[], optional=True)], cmdclass={"build_ext": BuildNative})

@@ -58,8 +58,6 @@ CONTROL_BYTES = 4096  # [bytes] the most an estop or unlock message may carry
 UNLOCKS = ("home", "assume_rest")
 
 
-
-
 A = TypeVar("A")
 
 
@@ -69,10 +67,10 @@ def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
     drives: list[A] = [a for a in acts if isinstance(a, kind)]
     if len(drives) != len(acts):
         what = kind.__name__.lower() + "s"
-        raise BadRequest(f"{robot.name}'s actuators are not all {what}: the {adapter} adapter drives {what}",
-                         field="robot")
+        raise BadRequest(
+            f"{robot.name}'s actuators are not all {what}: the {adapter} adapter drives {what}", field="robot"
+        )
     return drives
-
 
 
 LOOP_PRIORITY = 20  # SCHED_FIFO priority of an adapter's control loop (ros2_control's controller manager uses 50)
@@ -88,13 +86,21 @@ def _prioritise_this_thread(name: str) -> None:
     except (PermissionError, OSError, AttributeError) as e:
         log.info("%s: the control loop runs at normal priority (no SCHED_FIFO: %s)", name, e)
 
+
 class Adapter(ABC):
     kind = "adapter"
     tick = 0.005  # [s] the control loop's period; execute() decides what is due
     run_tick = 0.005  # [s] its period while a trajectory runs
 
-    def __init__(self, session: zenoh.Session, robot: Robot, *, prefix: str = "armd", state_hz: float = 50.0,
-                 check_period: float = 0.5) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: Robot,
+        *,
+        prefix: str = "armd",
+        state_hz: float = 50.0,
+        check_period: float = 0.5,
+    ) -> None:
         self.session = session
         self.robot = robot
         self.prefix = prefix.rstrip("/")
@@ -116,8 +122,9 @@ class Adapter(ABC):
         self._latest: JointState = JointState.at_rest(np.array(robot.neutral, dtype=float))
         self._moving = False
         self._state_pub = session.declare_publisher(f"{base}/state", encoding=JSON)
-        self._event_pub = session.declare_publisher(f"{base}/events", encoding=JSON,
-                                                    congestion_control=zenoh.CongestionControl.BLOCK)
+        self._event_pub = session.declare_publisher(
+            f"{base}/events", encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK
+        )
         self._stop = threading.Event()
         self._token: Any = None
         self._seq = 0  # the state's sequence number: the service ignores one not above the last
@@ -174,16 +181,21 @@ class Adapter(ABC):
         """An operator's word that the arm's position is known: ``"home"`` (run the homing
         cycle) or ``"assume_rest"`` (the arm is at its rest pose). Called on the control loop,
         with the arm still. The default: nothing to unlock."""
-        raise BadRequest(f"the {self.kind} adapter always knows where {self.robot.name} is: nothing to unlock",
-                         field="how")
+        raise BadRequest(
+            f"the {self.kind} adapter always knows where {self.robot.name} is: nothing to unlock", field="how"
+        )
 
     # -- the Zenoh side ----------------------------------------------------------------------
 
     def activate(self) -> None:
         """Start: subscribe to trajectories, the gripper, the estop and unlock keys, and declare
         the liveliness token (call when the hardware is ready)."""
-        for key, callback in (("trajectory", self._on_trajectory), ("gripper", self._on_gripper),
-                              ("estop", self._on_estop), ("unlock", self._on_unlock)):
+        for key, callback in (
+            ("trajectory", self._on_trajectory),
+            ("gripper", self._on_gripper),
+            ("estop", self._on_estop),
+            ("unlock", self._on_unlock),
+        ):
             self._subs.append(self.session.declare_subscriber(f"{self._base}/{key}", callback))
         self.stop_command("warm-up")  # (a first stop compiles the planner's code: seconds, not now but here)
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
@@ -193,14 +205,15 @@ class Adapter(ABC):
 
     def event(self, event: str, **fields: Any) -> None:
         try:
-            self._event_pub.put(encode({"event": event, "adapter": self.id, "kind": self.kind, "time": time.time(),
-                                        **fields}))
+            self._event_pub.put(
+                encode({"event": event, "adapter": self.id, "kind": self.kind, "time": time.time(), **fields})
+            )
         except zenoh.ZError:  # the session is gone (the process is ending)
             log.debug("event %s not published", event, exc_info=True)
 
     def _on_gripper(self, sample: zenoh.Sample) -> None:
         try:
-            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
             opening = msg["opening"]
             if isinstance(opening, bool) or not isinstance(opening, (int, float)) or not 0.0 <= opening <= 1.0:
                 raise ValueError(f"opening must be a number in [0, 1], got {opening!r}")
@@ -225,9 +238,11 @@ class Adapter(ABC):
                 raise ControllerFault(f"the controller is faulty: {self.fault}")
             self.admit(cmd)
             if not self.homed:
-                raise PositionUnknown(f"{self.robot.name}'s position is unknown (the controller lost it): home it "
-                                      "or confirm its rest pose (armd unlock) before moving it",
-                                      robot=self.robot.name)
+                raise PositionUnknown(
+                    f"{self.robot.name}'s position is unknown (the controller lost it): home it "
+                    "or confirm its rest pose (armd unlock) before moving it",
+                    robot=self.robot.name,
+                )
             self._check_start(cmd)
             with self._lock:
                 if cmd.id in self._seen:
@@ -253,9 +268,14 @@ class Adapter(ABC):
         if np.any(off > tol):
             j = int(np.argmax(off - tol))
             name = self.robot.joint_names[j]
-            raise StartMismatch(f"the trajectory starts {off[j]:.4f} rad from where {name} is "
-                                f"({here.position[j]:.4f} rad; at most {tol[j]:.4f} here): planned from another "
-                                "state", field="position", joint=name, state=here.to_dict())
+            raise StartMismatch(
+                f"the trajectory starts {off[j]:.4f} rad from where {name} is "
+                f"({here.position[j]:.4f} rad; at most {tol[j]:.4f} here): planned from another "
+                "state",
+                field="position",
+                joint=name,
+                state=here.to_dict(),
+            )
 
     def _install(self, cmd: Command) -> None:
         """Make ``cmd`` the running trajectory (the control loop starts it on its next pass)."""
@@ -273,7 +293,7 @@ class Adapter(ABC):
         """Any put stops the arm: a malformed message too (its id is made up)."""
         ident, reason = uuid.uuid4().hex, "estop"
         try:
-            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
             if isinstance(msg, dict):
                 if isinstance(msg.get("id"), str) and 0 < len(msg["id"]) <= 64:
                     ident = msg["id"]
@@ -311,7 +331,7 @@ class Adapter(ABC):
 
     def _on_unlock(self, sample: zenoh.Sample) -> None:
         try:
-            msg = json.loads(sample.payload.to_bytes()[:CONTROL_BYTES + 1])
+            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
             how = msg.get("how") if isinstance(msg, dict) else None
             if how not in UNLOCKS:
                 raise BadRequest(f"unlock needs 'how': one of {', '.join(UNLOCKS)}", field="how")
@@ -421,11 +441,23 @@ class Adapter(ABC):
         with self._lock:
             cmd = self._cmd
         s, moving = self._latest, self._moving
-        message = encode({
-            "robot": self.robot.name, "adapter": self.id, "kind": self.kind,
-            "position": s.position.tolist(), "velocity": s.velocity.tolist(), "acceleration": s.acceleration.tolist(),
-            "moving": moving, "trajectory": None if cmd is None else cmd.id, "fault": self.fault,
-            "homed": self.homed, "source": self.position_source, "time": time.time(), "seq": self._seq})
+        message = encode(
+            {
+                "robot": self.robot.name,
+                "adapter": self.id,
+                "kind": self.kind,
+                "position": s.position.tolist(),
+                "velocity": s.velocity.tolist(),
+                "acceleration": s.acceleration.tolist(),
+                "moving": moving,
+                "trajectory": None if cmd is None else cmd.id,
+                "fault": self.fault,
+                "homed": self.homed,
+                "source": self.position_source,
+                "time": time.time(),
+                "seq": self._seq,
+            }
+        )
         self._seq += 1
         try:
             self._state_pub.put(message)

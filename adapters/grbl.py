@@ -158,21 +158,19 @@ ERRORS = {
 }
 ALARMS = {
     1: "Hard limit: hard limit has been triggered. Machine position is likely lost due to sudden halt. "
-       "Re-homing is highly recommended.",
+    "Re-homing is highly recommended.",
     2: "Soft limit: G-code motion target exceeds machine travel. Machine position retained. Alarm may be safely "
-       "unlocked.",
+    "unlocked.",
     3: "Abort during cycle: reset while in motion. Machine position is likely lost due to sudden halt. Re-homing "
-       "is highly recommended.",
+    "is highly recommended.",
     4: "Probe fail: probe is not in the expected initial state before starting probe cycle.",
     5: "Probe fail: probe did not contact the workpiece within the programmed travel for G38.2 and G38.4.",
     6: "Homing fail: the active homing cycle was reset.",
     7: "Homing fail: safety door was opened during homing cycle.",
-    8: "Homing fail: pull off travel failed to clear limit switch. Try increasing pull-off setting or check "
-       "wiring.",
+    8: "Homing fail: pull off travel failed to clear limit switch. Try increasing pull-off setting or check wiring.",
     9: "Homing fail: could not find limit switch within search distances. Try increasing max travel, decreasing "
-       "pull-off distance, or check wiring.",
-    10: "Homing fail: second dual axis limit switch failed to trigger within configured search distance after "
-        "first.",
+    "pull-off distance, or check wiring.",
+    10: "Homing fail: second dual axis limit switch failed to trigger within configured search distance after first.",
 }
 
 
@@ -190,15 +188,28 @@ def describe(line: str) -> str:
 class GrblAdapter(SerialAdapter):
     kind = "grbl"
 
-    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int | None = None,
-                 prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, check_period: float = 0.5,
-                 assume_rest: bool = False, home: bool = False, segment: float = SEGMENT,
-                 serial_port: serial.SerialBase | None = None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: Robot,
+        port: str,
+        *,
+        baud: int | None = None,
+        prefix: str = "armd",
+        state_hz: float = 50.0,
+        timeout: float = 0.5,
+        check_period: float = 0.5,
+        assume_rest: bool = False,
+        home: bool = False,
+        segment: float = SEGMENT,
+        serial_port: serial.SerialBase | None = None,
+    ) -> None:
         self.steppers = actuators_of(robot, Stepper, "GRBL")
         self.axes = [a.axis for a in self.steppers]
         if any(ax not in AXES for ax in self.axes) or len(set(self.axes)) != len(self.axes):
-            raise BadRequest(f"GRBL axes are distinct letters of {AXES}; {robot.name} uses {', '.join(self.axes)}",
-                             field="axis")
+            raise BadRequest(
+                f"GRBL axes are distinct letters of {AXES}; {robot.name} uses {', '.join(self.axes)}", field="axis"
+            )
         if not 0.01 <= segment <= 0.5:
             raise BadRequest(f"segment must be in [0.01, 0.5] s, got {segment}", field="segment")
         ctl = robot.controller
@@ -208,22 +219,37 @@ class GrblAdapter(SerialAdapter):
         self.rest_steps = self._pose_steps(robot, ctl.get("rest_pose", list(robot.neutral)), "rest_pose")
         self.home_steps = self._pose_steps(robot, ctl["home_pose"], "home_pose") if self.homing else None
         if home and not self.homing:
-            raise BadRequest(f"{robot.name} has no homing switches ([controller] homing = true): it cannot home",
-                             field="home")
+            raise BadRequest(
+                f"{robot.name} has no homing switches ([controller] homing = true): it cannot home", field="home"
+            )
         self.timeout = timeout  # [s] how long the controller may take to answer (the port's reads poll)
         # GRBL must always hold the distance to stop: 15 blocks, less the running one and a margin
         stop_time = float(np.max(robot.limits.velocity / (2.0 * robot.limits.acceleration)))  # [s] of travel
         self.segment = max(segment, stop_time / (PLANNER_BLOCKS - 3))
         if self.segment > segment:
-            log.info("%s: segments of %.0f ms (GRBL's %d blocks must hold a stop's %.2f s of travel)", robot.name,
-                     self.segment * 1000, PLANNER_BLOCKS, stop_time)
+            log.info(
+                "%s: segments of %.0f ms (GRBL's %d blocks must hold a stop's %.2f s of travel)",
+                robot.name,
+                self.segment * 1000,
+                PLANNER_BLOCKS,
+                stop_time,
+            )
         self._spd = np.array([a.steps_per_degree for a in self.steppers])
         if np.any(self._spd > 500.0):  # GRBL reports positions to 0.001 (N_DECIMAL_COORDVALUE_MM)
             log.warning("%s: over 500 steps a degree: GRBL's reports (3 decimals) may be a step off", robot.name)
         self._index = [AXES.index(ax) for ax in self.axes]
-        super().__init__(session, robot, port, baud=baud or int(robot.controller.get("baud", 115200)),  # type: ignore[call-overload]
-                         timeout=0.02, write_timeout=timeout, prefix=prefix, state_hz=state_hz,
-                         check_period=check_period, serial_port=serial_port)
+        super().__init__(
+            session,
+            robot,
+            port,
+            baud=baud or int(robot.controller.get("baud", 115200)),  # type: ignore[call-overload]
+            timeout=0.02,
+            write_timeout=timeout,
+            prefix=prefix,
+            state_hz=state_hz,
+            check_period=check_period,
+            serial_port=serial_port,
+        )
         self.position_source = "measured"
         self.homed = False
         self.lost = "GRBL restarts with its position at 0 when the port opens"  # why homed is False
@@ -259,8 +285,12 @@ class GrblAdapter(SerialAdapter):
             self.serial.close()
             raise
         if not self.homed:
-            log.warning("%s: position unknown (%s): home it or confirm its rest pose (armd unlock %s) before moving "
-                        "it", robot.name, self.lost, robot.name)
+            log.warning(
+                "%s: position unknown (%s): home it or confirm its rest pose (armd unlock %s) before moving it",
+                robot.name,
+                self.lost,
+                robot.name,
+            )
         self.activate()
 
     @staticmethod
@@ -271,11 +301,17 @@ class GrblAdapter(SerialAdapter):
                 raise ValueError("not a list")
             q = robot.joint_vector([parse_angle(v) for v in pose], name)
         except ValueError:
-            raise BadRequest(f"{robot.name}: [controller] {name} must list {robot.nq} joint angles [rad] (numbers, "
-                             f"or like 'pi/2'), got {pose!r}", field=name) from None
+            raise BadRequest(
+                f"{robot.name}: [controller] {name} must list {robot.nq} joint angles [rad] (numbers, "
+                f"or like 'pi/2'), got {pose!r}",
+                field=name,
+            ) from None
         if not robot.limits.contains(q, tol=1e-9):
-            raise BadRequest(f"{robot.name}: [controller] {name} is outside the limits: "
-                             f"{robot.limits.violations(q, tol=1e-9)[0].message}", field=name)
+            raise BadRequest(
+                f"{robot.name}: [controller] {name} is outside the limits: "
+                f"{robot.limits.violations(q, tol=1e-9)[0].message}",
+                field=name,
+            )
         return np.asarray(robot.actuators.commands(q), dtype=np.int64)
 
     # -- the wire ------------------------------------------------------------------------
@@ -313,9 +349,11 @@ class GrblAdapter(SerialAdapter):
             self.homed = False
             self.lost = f"GRBL raised {describe(line)}"
             self._state = "Alarm"
-            self._trouble = (f"GRBL on {self.port} raised {describe(line)}: the arm's position is not trusted; the "
-                             f"adapter sends no unlock nor reset by itself: home it or confirm its rest pose "
-                             f"(armd unlock {self.robot.name})")
+            self._trouble = (
+                f"GRBL on {self.port} raised {describe(line)}: the arm's position is not trusted; the "
+                f"adapter sends no unlock nor reset by itself: home it or confirm its rest pose "
+                f"(armd unlock {self.robot.name})"
+            )
         elif line.startswith("[MSG:Reset to continue]"):
             self._reset_wanted = True
         elif line.startswith("<"):
@@ -358,9 +396,11 @@ class GrblAdapter(SerialAdapter):
                 self._write(b"\x18")  # no welcome on opening (a board that does not reset on open): reset it
                 reset_first = True
             time.sleep(0.005)
-        raise ControllerFault(f"no GRBL answers on {self.port} (nothing like GRBL's welcome within "
-                              f"{WELCOME_S:g} s, even after a reset; last line: {seen!r}): is it a GRBL 1.1 board, "
-                              "at this baud rate?")
+        raise ControllerFault(
+            f"no GRBL answers on {self.port} (nothing like GRBL's welcome within "
+            f"{WELCOME_S:g} s, even after a reset; last line: {seen!r}): is it a GRBL 1.1 board, "
+            "at this baud rate?"
+        )
 
     def _command(self, line: str, timeout: float | None = None) -> list[str]:
         """Send one line and wait for its ``ok`` (not while streaming); the lines GRBL printed before it."""
@@ -414,7 +454,7 @@ class GrblAdapter(SerialAdapter):
             want[100 + i] = float(self._spd[j])
             want[110 + i] = vmax * 60.0
             want[120 + i] = amax
-        want[11] = min(accels) * self.segment ** 2 / 8.0
+        want[11] = min(accels) * self.segment**2 / 8.0
         if self.homing:
             want[22] = 1
         return want
@@ -432,15 +472,17 @@ class GrblAdapter(SerialAdapter):
                 try:
                     self._command(f"${n}={want[n]:.4f}".rstrip("0").rstrip("."))
                 except ControllerFault as e:
-                    raise ControllerFault(f"GRBL on {self.port} will not take ${n}={want[n]:.4f} ({e.message}): "
-                                          "refusing to start") from None
+                    raise ControllerFault(
+                        f"GRBL on {self.port} will not take ${n}={want[n]:.4f} ({e.message}): refusing to start"
+                    ) from None
         have = self._settings()
         bad = [n for n in sorted(want) if off(have, n)]
         if bad:
             n = bad[0]
-            raise ControllerFault(f"GRBL on {self.port} will not take ${n}={want[n]:.4f} (it reads back "
-                                  f"{have.get(n)}): refusing to start" + (" (status reports would not carry MPos)"
-                                                                          if n == 10 else ""))
+            raise ControllerFault(
+                f"GRBL on {self.port} will not take ${n}={want[n]:.4f} (it reads back "
+                f"{have.get(n)}): refusing to start" + (" (status reports would not carry MPos)" if n == 10 else "")
+            )
 
     def _reset(self) -> None:
         """Soft reset (only at rest: Idle or Hold:0, or in an alarm because an operator asked); wait for the
@@ -510,8 +552,10 @@ class GrblAdapter(SerialAdapter):
             return True
         if time.monotonic() > self._holding:
             self._holding = None
-            raise ControllerFault(f"GRBL on {self.port} did not complete its feed hold (state {self._state}"
-                                  f"{':' + self._sub if self._sub else ''})")
+            raise ControllerFault(
+                f"GRBL on {self.port} did not complete its feed hold (state {self._state}"
+                f"{':' + self._sub if self._sub else ''})"
+            )
         if time.monotonic() - self._asked >= STATUS_EVERY:
             self._poll_status()
         return False
@@ -572,8 +616,10 @@ class GrblAdapter(SerialAdapter):
             return False
         assert self._target is not None
         if not np.array_equal(self._steps, self._target):
-            raise ControllerFault(f"GRBL on {self.port} stopped at {self._steps.tolist()} steps, not at the "
-                                  f"trajectory's end {self._target.tolist()}")
+            raise ControllerFault(
+                f"GRBL on {self.port} stopped at {self._steps.tolist()} steps, not at the "
+                f"trajectory's end {self._target.tolist()}"
+            )
         self._v = np.zeros(self.robot.nq)
         self._a = np.zeros(self.robot.nq)
         self._streaming = False
@@ -586,8 +632,10 @@ class GrblAdapter(SerialAdapter):
         off = np.abs(cmd.position[0] - here)
         if np.any(off > START_TOL):
             j = int(np.argmax(off))
-            reason = (f"trajectory {cmd.id} starts {off[j]:.4f} rad from where {self.robot.joint_names[j]} was held "
-                      f"({here[j]:.4f} rad; at most {START_TOL}): plan it again from where the arm is")
+            reason = (
+                f"trajectory {cmd.id} starts {off[j]:.4f} rad from where {self.robot.joint_names[j]} was held "
+                f"({here[j]:.4f} rad; at most {START_TOL}): plan it again from where the arm is"
+            )
             with self._lock:
                 if self._cmd is cmd:
                     self._finished = True
@@ -635,8 +683,11 @@ class GrblAdapter(SerialAdapter):
         self._poll_status(wait=True)
         if how == "home":
             if not self.homing:
-                raise BadRequest(f"{self.robot.name} has no homing switches ([controller] homing = true in its "
-                                 "robot.toml): confirm its rest pose instead", field="how")
+                raise BadRequest(
+                    f"{self.robot.name} has no homing switches ([controller] homing = true in its "
+                    "robot.toml): confirm its rest pose instead",
+                    field="how",
+                )
             self._home()
         else:
             self._assume_rest()
@@ -658,8 +709,10 @@ class GrblAdapter(SerialAdapter):
     def _assume_rest(self) -> None:
         self._operator_reset()
         if self._state == "Alarm":
-            log.warning("%s: GRBL is in an alarm: unlocking it ($X) because an operator said the arm is at rest",
-                        self.robot.name)
+            log.warning(
+                "%s: GRBL is in an alarm: unlocking it ($X) because an operator said the arm is at rest",
+                self.robot.name,
+            )
             self._command("$X")
             self._command(_MODES)
         self._set_offset(self.rest_steps, "at its rest pose (an operator's word)")
@@ -670,8 +723,13 @@ class GrblAdapter(SerialAdapter):
         self.homed = True
         self.lost = ""
         self._latest = JointState.at_rest(self._joints(self._steps))
-        log.info("%s: position known: %s; GRBL's machine position %s steps is the actuators' %s", self.robot.name,
-                 how, self._steps.tolist(), actuator_steps.tolist())
+        log.info(
+            "%s: position known: %s; GRBL's machine position %s steps is the actuators' %s",
+            self.robot.name,
+            how,
+            self._steps.tolist(),
+            actuator_steps.tolist(),
+        )
 
     def shutdown(self) -> None:
         try:

@@ -15,13 +15,13 @@ from armd.robots import Robot
 from .base import Adapter
 
 
-def open_port(port: str, baud: int, timeout: float, write_timeout: float, *,
-              exclusive: bool = False) -> serial.SerialBase:
+def open_port(
+    port: str, baud: int, timeout: float, write_timeout: float, *, exclusive: bool = False
+) -> serial.SerialBase:
     """A serial port or pyserial URL, opened; :class:`ControllerFault` naming it if it cannot be
     (missing, or busy: with ``exclusive`` another program's lock on it is refused)."""
     try:
-        ser = serial.serial_for_url(port, do_not_open=True, baudrate=baud, timeout=timeout,
-                                    write_timeout=write_timeout)
+        ser = serial.serial_for_url(port, do_not_open=True, baudrate=baud, timeout=timeout, write_timeout=write_timeout)
         if exclusive and hasattr(ser, "exclusive"):
             ser.exclusive = True
         ser.open()
@@ -35,9 +35,20 @@ class SerialAdapter(Adapter):
     """An adapter whose controller is on a serial port (or a pyserial URL): the port, opened
     (:func:`open_port`), and the lock its users share (the control loop, gripper requests)."""
 
-    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int, timeout: float,
-                 write_timeout: float, prefix: str = "armd", state_hz: float = 50.0, check_period: float = 0.5,
-                 serial_port: serial.SerialBase | None = None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: Robot,
+        port: str,
+        *,
+        baud: int,
+        timeout: float,
+        write_timeout: float,
+        prefix: str = "armd",
+        state_hz: float = 50.0,
+        check_period: float = 0.5,
+        serial_port: serial.SerialBase | None = None,
+    ) -> None:
         self.port = port
         self._io = threading.Lock()
         if serial_port is None:

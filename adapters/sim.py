@@ -22,8 +22,17 @@ from .trajectory_message import Command
 class SimAdapter(Adapter):
     kind = "sim"
 
-    def __init__(self, session: zenoh.Session, robot: Robot, *, prefix: str = "armd", time_scale: float = 1.0,
-                 lag: float = 0.0, state_hz: float = 50.0, start: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: Robot,
+        *,
+        prefix: str = "armd",
+        time_scale: float = 1.0,
+        lag: float = 0.0,
+        state_hz: float = 50.0,
+        start: np.ndarray | None = None,
+    ) -> None:
         if not (time_scale > 0 and math.isfinite(time_scale)):
             raise ValueError("time_scale must be a positive number")
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz)

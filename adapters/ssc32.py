@@ -98,10 +98,21 @@ class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
     run_tick = RUN_TICK
 
-    def __init__(self, session: zenoh.Session, robot: Robot, port: str, *, baud: int | None = None,
-                 prefix: str = "armd", state_hz: float = 50.0, timeout: float = 0.5, query_period: float = 0.5,
-                 state_dir: str | Path | None = None, lead: float = LEAD,
-                 serial_port: serial.SerialBase | None = None) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        robot: Robot,
+        port: str,
+        *,
+        baud: int | None = None,
+        prefix: str = "armd",
+        state_hz: float = 50.0,
+        timeout: float = 0.5,
+        query_period: float = 0.5,
+        state_dir: str | Path | None = None,
+        lead: float = LEAD,
+        serial_port: serial.SerialBase | None = None,
+    ) -> None:
         self.channels = [a.channel for a in actuators_of(robot, Servo, "SSC-32")]
         self.baud = int(baud or robot.controller.get("baud", 9600))  # type: ignore[call-overload]
         if self.baud <= 0:
@@ -110,14 +121,27 @@ class SSC32Adapter(SerialAdapter):
         self.query_period = query_period
         self.lead = lead
         self.state_file = Path(state_dir or state_dir_default()) / f"{robot.name}.ssc32.json"
-        super().__init__(session, robot, port, baud=self.baud, timeout=timeout, write_timeout=timeout, prefix=prefix,
-                         state_hz=state_hz, check_period=0.02, serial_port=serial_port)
+        super().__init__(
+            session,
+            robot,
+            port,
+            baud=self.baud,
+            timeout=timeout,
+            write_timeout=timeout,
+            prefix=prefix,
+            state_hz=state_hz,
+            check_period=0.02,
+            serial_port=serial_port,
+        )
         lim = robot.limits
         self._vmax, self._amax = lim.velocity, lim.acceleration
         amap = robot.actuators  # [rad] per joint, half a microsecond of the servo that moves it most finely
-        self._half_pulse = np.array([0.5 * max(a.resolution / abs(m) for a, m in zip(amap.actuators, amap.M[:, j],
-                                                                                 strict=True) if m)
-                                     for j in range(robot.nq)])
+        self._half_pulse = np.array(
+            [
+                0.5 * max(a.resolution / abs(m) for a, m in zip(amap.actuators, amap.M[:, j], strict=True) if m)
+                for j in range(robot.nq)
+            ]
+        )
         # the board's motion, as the model has it: linear from _p0 at _t0 to _p1 at _t1, then held
         now = time.monotonic()
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
@@ -157,22 +181,34 @@ class SSC32Adapter(SerialAdapter):
             # the board still outputs it, is exact; else the middle of what QP allows
             kept, _ = self._left_at()
             exact = amap.command_values(kept)
-            q = kept if np.all((exact >= pulses - 0.5) & (exact < pulses + 10.5)) else \
-                amap.joints_from_commands(pulses + 5.0, tol=np.inf)
+            q = (
+                kept
+                if np.all((exact >= pulses - 0.5) & (exact < pulses + 10.5))
+                else amap.joints_from_commands(pulses + 5.0, tol=np.inf)
+            )
             lim = self.robot.limits
             if not lim.contains(q, tol=0.02):
                 bad = lim.violations(q, tol=0.02)
                 self.serial.close()
-                raise ControllerFault(f"the SSC-32 on {self.port} holds {self.robot.name} outside its limits "
-                                      f"({bad[0].message}): move the arm inside them by hand (power off) first")
+                raise ControllerFault(
+                    f"the SSC-32 on {self.port} holds {self.robot.name} outside its limits "
+                    f"({bad[0].message}): move the arm inside them by hand (power off) first"
+                )
             q = lim.clip(q)
-            log.info("%s: the board outputs pulses already (%s us): adopted as it is",
-                     self.robot.name, " ".join(str(int(p)) for p in pulses))
+            log.info(
+                "%s: the board outputs pulses already (%s us): adopted as it is",
+                self.robot.name,
+                " ".join(str(int(p)) for p in pulses),
+            )
             self._hold_at(q)
             return
         q, where = self._left_at()
-        log.warning("%s: the SSC-32 outputs no pulses (just powered): a hobby servo's position is unknown until "
-                    "its first pulse, so the arm JUMPS to %s at the servos' own speed now", self.robot.name, where)
+        log.warning(
+            "%s: the SSC-32 outputs no pulses (just powered): a hobby servo's position is unknown until "
+            "its first pulse, so the arm JUMPS to %s at the servos' own speed now",
+            self.robot.name,
+            where,
+        )
         self._send(amap.commands(q), None)
         if not np.all(self._query_pulses() > 0):  # (asked after the move: answered once the board has it)
             self.serial.close()
@@ -198,8 +234,16 @@ class SSC32Adapter(SerialAdapter):
         try:
             self.state_file.parent.mkdir(parents=True, exist_ok=True)
             tmp = self.state_file.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"robot": self.robot.name, "position": q.tolist(),
-                                       "pulses": self.robot.actuators.commands(q).tolist(), "time": time.time()}))
+            tmp.write_text(
+                json.dumps(
+                    {
+                        "robot": self.robot.name,
+                        "position": q.tolist(),
+                        "pulses": self.robot.actuators.commands(q).tolist(),
+                        "time": time.time(),
+                    }
+                )
+            )
             tmp.replace(self.state_file)
         except OSError as e:
             log.warning("%s: cannot keep the pose in %s: %s", self.robot.name, self.state_file, e)
@@ -294,8 +338,9 @@ class SSC32Adapter(SerialAdapter):
         self._rhythm = arrival + period  # the next move arrives no sooner: no piece shorter than a period
         self._settled = final
 
-    def _aim(self, cmd: Command, arrival: float, first: bool, period: float,
-             span: float) -> tuple[FloatArray, float, bool]:
+    def _aim(
+        self, cmd: Command, arrival: float, first: bool, period: float, span: float
+    ) -> tuple[FloatArray, float, bool]:
         """A group move the board starts at ``arrival`` [s] and that lasts ``span`` [s]: its
         target [rad], the plan's time it was aimed from [s], and whether it is the last one
         (it ends at the trajectory's end, slowly enough to stop there).
@@ -320,8 +365,9 @@ class SSC32Adapter(SerialAdapter):
             goal = np.where((goal - p0) * way < 0.0, p0, goal)
         if tau + span >= cmd.duration:  # the plan ends within this move: the goal, once the board may stop there
             d = goal - p0
-            if np.all(np.abs(d) <= self._amax * period * span * (1 + 1e-9)) and \
-                    np.all(np.abs(d / span - v0) <= c * (1 + 1e-9)):
+            if np.all(np.abs(d) <= self._amax * period * span * (1 + 1e-9)) and np.all(
+                np.abs(d / span - v0) <= c * (1 + 1e-9)
+            ):
                 return goal.copy(), tau, True
         ahead = cmd.sample_at(tau + span)[0]
         v = np.clip((ahead - p0) / span, v0 - c, v0 + c)
@@ -363,10 +409,14 @@ class SSC32Adapter(SerialAdapter):
         per_second = LINK_SHARE * self.baud / 10.0 / self._line_bytes()  # group moves the link carries [1/s]
         stride = max(1, math.ceil(cmd.rate_hz / per_second - 1e-9))
         if stride / cmd.rate_hz > MAX_PERIOD + 1e-9 and len(cmd.times) > 1:
-            raise BadRequest(f"at {self.baud} baud the link carries {per_second:.1f} group moves of "
-                             f"{len(self.channels)} servos a second: samples {stride / cmd.rate_hz * 1000:.0f} ms "
-                             f"apart, more than {MAX_PERIOD * 1000:.0f} ms; raise the SSC-32's baud rate "
-                             f"(--baud and the board's)", field="rate_hz", baud=self.baud)
+            raise BadRequest(
+                f"at {self.baud} baud the link carries {per_second:.1f} group moves of "
+                f"{len(self.channels)} servos a second: samples {stride / cmd.rate_hz * 1000:.0f} ms "
+                f"apart, more than {MAX_PERIOD * 1000:.0f} ms; raise the SSC-32's baud rate "
+                f"(--baud and the board's)",
+                field="rate_hz",
+                baud=self.baud,
+            )
         return stride
 
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
@@ -396,8 +446,13 @@ class SSC32Adapter(SerialAdapter):
         """Said when the control loop ran so late (a stalled process) that the board finished its
         move and held: a stop at the speed it had, which no command of the SSC-32 can soften."""
         v = float(np.max(np.abs(self._p1 - self._p0) / max(self._t1 - self._t0, 1e-6) / self._vmax))
-        log.warning("%s: the adapter ran %.0f ms late: the board finished its move and held (from %.0f%% of a "
-                    "velocity limit); resuming from rest", self.robot.name, late * 1000, 100 * v)
+        log.warning(
+            "%s: the adapter ran %.0f ms late: the board finished its move and held (from %.0f%% of a "
+            "velocity limit); resuming from rest",
+            self.robot.name,
+            late * 1000,
+            100 * v,
+        )
         self.event("late", id=cmd.id, late=late, speed_ratio=v)
 
     def finished(self, cmd: Command) -> None:
@@ -478,8 +533,10 @@ class SSC32Adapter(SerialAdapter):
             return "no QP answer"
         if not np.all(pulses > 0):
             ch = self.channels[int(np.argmin(pulses))]
-            return (f"SSC-32 on {self.port}: channel {ch} outputs 0 us (the board was reset or powered off): "
-                    "restart the adapter to command the arm's pose again")
+            return (
+                f"SSC-32 on {self.port}: channel {ch} outputs 0 us (the board was reset or powered off): "
+                "restart the adapter to command the arm's pose again"
+            )
         q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
         if not self.robot.limits.contains(q, tol=0.02):
             bad = self.robot.limits.violations(q, tol=0.02)[0].message
@@ -496,9 +553,11 @@ class SSC32Adapter(SerialAdapter):
         off = np.maximum(lo - pulses, pulses - hi)
         if np.any(off > 0):
             i = int(np.argmax(off))
-            raise ControllerFault(f"SSC-32 on {self.port}: channel {self.channels[i]} outputs {pulses[i]:.0f} us, "
-                                  f"the adapter commanded {model[-1, i]:.0f} us (someone else moved it, or the board "
-                                  "was reset)")
+            raise ControllerFault(
+                f"SSC-32 on {self.port}: channel {self.channels[i]} outputs {pulses[i]:.0f} us, "
+                f"the adapter commanded {model[-1, i]:.0f} us (someone else moved it, or the board "
+                "was reset)"
+            )
 
     def grip(self, opening: float) -> None:
         """Open (1) or close (0) the gripper, or anything between: its own channel, over 0.5 s."""

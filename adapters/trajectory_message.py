@@ -61,9 +61,11 @@ class Command:
         if k >= len(self.times) - 1:
             return self.position[-1], self.velocity[-1], self.acceleration[-1]
         w = (t - self.times[k]) * self.rate_hz
-        return ((1 - w) * self.position[k] + w * self.position[k + 1],
-                (1 - w) * self.velocity[k] + w * self.velocity[k + 1],
-                (1 - w) * self.acceleration[k] + w * self.acceleration[k + 1])
+        return (
+            (1 - w) * self.position[k] + w * self.position[k + 1],
+            (1 - w) * self.velocity[k] + w * self.velocity[k + 1],
+            (1 - w) * self.acceleration[k] + w * self.acceleration[k + 1],
+        )
 
 
 def motion(position: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
@@ -82,8 +84,12 @@ def parse(robot: Robot, payload: bytes) -> Command:
     and actuator range of ``robot`` (:class:`BadRequest` or :class:`LimitError` naming the
     first problem: nothing of a refused trajectory is executed)."""
     if len(payload) > MAX_BYTES:
-        raise BadRequest(f"trajectory message of {len(payload)} bytes; an adapter takes at most {MAX_BYTES}",
-                         field="trajectory", size=len(payload), limit=MAX_BYTES)
+        raise BadRequest(
+            f"trajectory message of {len(payload)} bytes; an adapter takes at most {MAX_BYTES}",
+            field="trajectory",
+            size=len(payload),
+            limit=MAX_BYTES,
+        )
     try:
         msg = orjson.loads(payload)
         if not isinstance(msg, dict):
@@ -102,21 +108,25 @@ def parse(robot: Robot, payload: bytes) -> Command:
     if kind not in KINDS:
         raise BadRequest(f"kind must be one of {', '.join(KINDS)}, got {kind!r}", field="kind")
     if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not RATE_RANGE[0] <= rate <= RATE_RANGE[1]:
-        raise BadRequest(f"rate_hz must be a number in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz, got {rate!r}",
-                         field="rate_hz")
+        raise BadRequest(
+            f"rate_hz must be a number in [{RATE_RANGE[0]:g}, {RATE_RANGE[1]:g}] Hz, got {rate!r}", field="rate_hz"
+        )
     n, k = robot.nq, len(times)
     if times.ndim != 1 or k == 0 or pos.shape != (k, n):
         raise BadRequest(f"times must be (k,) and position (k, {n}) for {robot.name}", field="trajectory")
     if k > MAX_SAMPLES:
-        raise BadRequest(f"{k} samples; an adapter takes at most {MAX_SAMPLES}", field="times", size=k,
-                         limit=MAX_SAMPLES)
+        raise BadRequest(
+            f"{k} samples; an adapter takes at most {MAX_SAMPLES}", field="times", size=k, limit=MAX_SAMPLES
+        )
     dt = 1.0 / float(rate)
-    if not (np.all(np.isfinite(times)) and abs(times[0]) <= 1e-9
-            and np.allclose(np.diff(times), dt, rtol=0.0, atol=1e-9)):
+    if not (
+        np.all(np.isfinite(times)) and abs(times[0]) <= 1e-9 and np.allclose(np.diff(times), dt, rtol=0.0, atol=1e-9)
+    ):
         raise BadRequest("trajectory times must start at 0 and be evenly spaced at 1 / rate_hz", field="times")
     if times[-1] > MAX_DURATION:
-        raise BadRequest(f"a trajectory of {times[-1]:.1f} s; an adapter takes at most {MAX_DURATION:g} s",
-                         field="times")
+        raise BadRequest(
+            f"a trajectory of {times[-1]:.1f} s; an adapter takes at most {MAX_DURATION:g} s", field="times"
+        )
     if not np.all(np.isfinite(pos)):
         raise BadRequest("trajectory positions must be finite numbers", field="position")
     vel, acc = motion(pos, dt)
@@ -132,7 +142,12 @@ def _within(robot: Robot, times: FloatArray, values: FloatArray, limit: FloatArr
     if over.any():
         k, j = (int(i) for i in np.argwhere(over)[0])
         name = robot.joint_names[j]
-        raise LimitError(f"joint {name!r} moves at {values[k, j]:.6g} {unit} (the samples' finite difference) at "
-                         f"t = {times[k]:.4f} s, over its {kind} limit {limit[j]:.6g} {unit}",
-                         name=name, value=float(values[k, j]), bounds=(-float(limit[j]), float(limit[j])), kind=kind,
-                         time=float(times[k]))
+        raise LimitError(
+            f"joint {name!r} moves at {values[k, j]:.6g} {unit} (the samples' finite difference) at "
+            f"t = {times[k]:.4f} s, over its {kind} limit {limit[j]:.6g} {unit}",
+            name=name,
+            value=float(values[k, j]),
+            bounds=(-float(limit[j]), float(limit[j])),
+            kind=kind,
+            time=float(times[k]),
+        )

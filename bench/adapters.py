@@ -109,11 +109,29 @@ class Bench:
         env = {**os.environ, "ARMD_STATE_DIR": state_dir}
         log = Path(state_dir) / "adapter.log"  # (a pipe nobody reads would stall the adapter once full)
         with log.open("w") as err:
-            proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", kind, robot, "--port", port,
-                                     "--connect", self.endpoint, "--robots-dir", str(self.arms_dir), *extra],
-                                    cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err, text=True)
-        wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30,
-             "the adapter")
+            proc = subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "armd.cli",
+                    "adapter",
+                    kind,
+                    robot,
+                    "--port",
+                    port,
+                    "--connect",
+                    self.endpoint,
+                    "--robots-dir",
+                    str(self.arms_dir),
+                    *extra,
+                ],
+                cwd=ROOT,
+                env=env,
+                stdout=subprocess.DEVNULL,
+                stderr=err,
+                text=True,
+            )
+        wait(lambda: self.service._adapter_count(self.arms[robot]) == 1 or proc.poll() is not None, 30, "the adapter")
         if proc.poll() is not None:
             raise RuntimeError(f"the {kind} adapter exited: {log.read_text()[-2000:]}")
         self.logs.append(log)
@@ -122,8 +140,11 @@ class Bench:
     def at_rest(self, robot: str, goal: list[float], timeout: float) -> None:
         def there() -> bool:
             s = self.client.state(robot)  # (as the adapter says: what the service last commanded is no proof)
-            return s["source"] == "adapter" and not s["moving"] and \
-                bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
+            return (
+                s["source"] == "adapter"
+                and not s["moving"]
+                and bool(np.max(np.abs(np.array(s["position"]) - goal)) < 5e-3)
+            )
 
         try:
             wait(there, timeout, "the arm at its goal")
@@ -132,8 +153,9 @@ class Bench:
             raise TimeoutError(f"the arm did not reach its goal ({said[-1] if said else 'nothing logged'})") from None
 
 
-def run_move(b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str],
-             stall: bool) -> tuple[float, float | None]:
+def run_move(
+    b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str], stall: bool
+) -> tuple[float, float | None]:
     """One move; returns the planned duration [s] and when the adapter was stopped (stall) [s]."""
     r = b.client.move(robot, goal)
     stopped = None
@@ -150,8 +172,10 @@ def run_move(b: Bench, robot: str, goal: list[float], proc: subprocess.Popen[str
 def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     arm = b.arms["insomniac"]
     out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
-    with tempfile.TemporaryDirectory() as state, \
-            EmulatorProcess(SSC32Emulator, query_delay=0.15 if condition == "slow board" else 1e-4) as emu:
+    with (
+        tempfile.TemporaryDirectory() as state,
+        EmulatorProcess(SSC32Emulator, query_delay=0.15 if condition == "slow board" else 1e-4) as emu,
+    ):
         proc = b.adapter("ssc32", "insomniac", emu.port, state)
         hot = burners(2) if condition == "busy" else []
         try:
@@ -165,9 +189,14 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
                     t0, t1 = m.moving()
                     # a stall: the motion before it and after it (the board's hold at the stall is the
                     # stop at speed no SSC-32 move can soften: docs/adapters.md)
-                    parts = [m] if stalled is None else [
-                        Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0),
-                        Motion(m.times[m.times >= stalled + 1.0], m.position[m.times >= stalled + 1.0], 0)]
+                    parts = (
+                        [m]
+                        if stalled is None
+                        else [
+                            Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0),
+                            Motion(m.times[m.times >= stalled + 1.0], m.position[m.times >= stalled + 1.0], 0),
+                        ]
+                    )
                     rs = [ratios(arm, part, 0.02, ssc32_speed_noise(arm, emu, since)) for part in parts]
                     out["v"].append(max(r.velocity for r in rs))
                     out["a"].append(max(r.acceleration for r in rs))
@@ -215,8 +244,10 @@ def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     arm = b.arms["gupta3fine"]
     vlim, alim = actuator_limits_deg(arm)
     out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
-    with tempfile.TemporaryDirectory() as state, \
-            GrblEmulator(status_delay=0.15 if condition == "slow board" else 0.003) as emu:
+    with (
+        tempfile.TemporaryDirectory() as state,
+        GrblEmulator(status_delay=0.15 if condition == "slow board" else 0.003) as emu,
+    ):
         proc = b.adapter("grbl", "gupta3fine", emu.port, state, "--assume-rest")
         hot = burners(2) if condition == "busy" else []
         try:
@@ -284,8 +315,10 @@ def main() -> None:
         if "failed" in res:
             print(f"| {name} | {condition} | failed: {res['failed']} | | | |")
             continue
-        print(f"| {name} | {condition} | {cell(res['v'])} | {cell(res['a'])} | {cell(res['duration'])} | "
-              f"{cell(res['stop'])} |")
+        print(
+            f"| {name} | {condition} | {cell(res['v'])} | {cell(res['a'])} | {cell(res['duration'])} | "
+            f"{cell(res['stop'])} |"
+        )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
 
 

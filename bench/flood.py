@@ -105,8 +105,12 @@ def main() -> None:
     from armd.service.zconfig import free_endpoint
 
     endpoint = free_endpoint()
-    serve = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--sim", "--listen", endpoint],
-                             cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", "serve", "--sim", "--listen", endpoint],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     results: dict[str, Any] = {}
     try:
         from armd.clients import ArmClient
@@ -124,9 +128,25 @@ def main() -> None:
             time.sleep(0.5)
         results["idle"] = operator(endpoint, args.cycles)
         seconds = args.cycles * 4.0 + 20.0
-        fl = subprocess.Popen([sys.executable, __file__, "--worker", "flood", "--endpoint", endpoint,
-                               "--batches", str(args.batches), "--targets", str(args.targets),
-                               "--seconds", str(seconds)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        fl = subprocess.Popen(
+            [
+                sys.executable,
+                __file__,
+                "--worker",
+                "flood",
+                "--endpoint",
+                endpoint,
+                "--batches",
+                str(args.batches),
+                "--targets",
+                str(args.targets),
+                "--seconds",
+                str(seconds),
+            ],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         assert fl.stdout is not None
         assert fl.stdout.readline().strip() == "ready"
         time.sleep(5.0)  # the flood in full
@@ -136,8 +156,10 @@ def main() -> None:
     finally:
         serve.terminate()
         serve.wait(20)
-    print(f"{args.batches} IK batches of {args.targets} targets in flight "
-          f"({results.get('answered', '?')} answered during the run); latency [ms], median / p99 / max:\n")
+    print(
+        f"{args.batches} IK batches of {args.targets} targets in flight "
+        f"({results.get('answered', '?')} answered during the run); latency [ms], median / p99 / max:\n"
+    )
     print("| request | idle | flooded |")
     print("|---|---|---|")
     for verb in ("stop", "move"):

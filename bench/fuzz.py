@@ -50,8 +50,9 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=10_000)
     args = ap.parse_args()
     endpoint = free_endpoint()
-    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint], cwd=ROOT,
-                            stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint], cwd=ROOT, stdout=subprocess.PIPE, text=True
+    )
     assert proc.stdout is not None
     proc.stdout.readline()
     ctx = mp.get_context("spawn")
@@ -66,8 +67,12 @@ def main() -> None:
     try:
         with ArmClient(endpoint, timeout=10.0) as c:
             published: list[str] = []
-            sub = c.session.declare_subscriber("armd/**", lambda s: published.append(str(s.key_expr))
-                                               if str(s.key_expr).endswith(("/trajectory", "/gripper")) else None)
+            sub = c.session.declare_subscriber(
+                "armd/**",
+                lambda s: (
+                    published.append(str(s.key_expr)) if str(s.key_expr).endswith(("/trajectory", "/gripper")) else None
+                ),
+            )
             before = rss_mb(proc.pid)
             codes: dict[str, int] = {}
             wrong = 0
@@ -101,8 +106,10 @@ def main() -> None:
             after = rss_mb(proc.pid)
             ok = c.ik("insomniac", [0.25, 0.05, 0.12]).status
             sub.undeclare()
-        print(f"{args.n} bad requests in {elapsed:.1f} s of round trips, one at a time ({args.n / elapsed:.0f}/s): "
-              f"{args.n - wrong} answered with exactly one structured error, {wrong} not")
+        print(
+            f"{args.n} bad requests in {elapsed:.1f} s of round trips, one at a time ({args.n / elapsed:.0f}/s): "
+            f"{args.n - wrong} answered with exactly one structured error, {wrong} not"
+        )
         print("codes:", ", ".join(f"{k} {v}" for k, v in sorted(codes.items())))
         print(f"published trajectories or gripper commands: {len(published)}")
         print(f"service resident memory: {before:.0f} MB before, {after:.0f} MB after")
@@ -110,11 +117,14 @@ def main() -> None:
         a, e = np.array(armd_us), np.array(echo_us)
         print("\n| round trip, us (client -> embedded router -> server) | p50 | p99 | max |")
         print("|---|---:|---:|---:|")
-        print(f"| armd error reply to a bad request | {np.median(a):.0f} | {np.percentile(a, 99):.0f} | "
-              f"{a.max():.0f} |")
+        print(
+            f"| armd error reply to a bad request | {np.median(a):.0f} | {np.percentile(a, 99):.0f} | {a.max():.0f} |"
+        )
         print(f"| bare Zenoh echo, same payload | {np.median(e):.0f} | {np.percentile(e, 99):.0f} | {e.max():.0f} |")
-        print(f"| ratio | {np.median(a) / np.median(e):.2f}x | {np.percentile(a, 99) / np.percentile(e, 99):.2f}x | "
-              f"{a.max() / e.max():.2f}x |")
+        print(
+            f"| ratio | {np.median(a) / np.median(e):.2f}x | {np.percentile(a, 99) / np.percentile(e, 99):.2f}x | "
+            f"{a.max() / e.max():.2f}x |"
+        )
     finally:
         stop.set()
         echo.join(10)

@@ -128,18 +128,26 @@ class Case:
     def row(self) -> dict[str, Any]:
         t = np.array(self.times_ns, dtype=float) / 1e3
         out: dict[str, Any] = {
-            "arm": self.arm, "solver": self.solver, "case": self.case, "reachable": self.reachable, "n": self.n,
+            "arm": self.arm,
+            "solver": self.solver,
+            "case": self.case,
+            "reachable": self.reachable,
+            "n": self.n,
             "success": self.success if self.reachable else None,
             "success_rate": (self.success / self.n if self.n else None) if self.reachable else None,
             "claimed": self.claimed if self.claimed_known else None,
-            "exceptions": self.exceptions, "crashes": self.crashes,
-            "off_target": self.off_target, "outside_limits": self.outside_limits,
-            "no_answer": self.no_answer, "statuses": self.statuses or None,
+            "exceptions": self.exceptions,
+            "crashes": self.crashes,
+            "off_target": self.off_target,
+            "outside_limits": self.outside_limits,
+            "no_answer": self.no_answer,
+            "statuses": self.statuses or None,
             "median_us": float(np.median(t)) if len(t) else None,
             "p99_us": float(np.percentile(t, 99)) if len(t) else None,
             "mean_us": float(np.mean(t)) if len(t) else None,
             "max_us": float(np.max(t)) if len(t) else None,
-            "wall_s": self.wall_s, "load_avg_1min": self.load_before,
+            "wall_s": self.wall_s,
+            "load_avg_1min": self.load_before,
         }
         if self.solver == "armd":
             out["transient_slow_calls"] = self.transient_slow
@@ -191,9 +199,19 @@ class CaseRun:
     failures, uncalled.
     """
 
-    def __init__(self, adapter: peers.Adapter, robot: Any, case: Case, targets: np.ndarray, seeds: np.ndarray,
-                 truth: np.ndarray | None, tol: float, problems: Problems | None, crumb: Crumb | None = None,
-                 crashed: set[int] | frozenset[int] = frozenset()) -> None:
+    def __init__(
+        self,
+        adapter: peers.Adapter,
+        robot: Any,
+        case: Case,
+        targets: np.ndarray,
+        seeds: np.ndarray,
+        truth: np.ndarray | None,
+        tol: float,
+        problems: Problems | None,
+        crumb: Crumb | None = None,
+        crashed: set[int] | frozenset[int] = frozenset(),
+    ) -> None:
         self.adapter, self.robot, self.case = adapter, robot, case
         self.targets, self.seeds, self.truth, self.tol, self.problems = targets, seeds, truth, tol, problems
         self.crumb = crumb or Crumb(None)
@@ -236,11 +254,29 @@ class CaseRun:
                 case.exceptions += 1
                 case.no_answer += 1
                 if problems is not None:
-                    problems.add("exception", {"arm": case.arm, "case": case.case, "error": err_text, "trace": trace,
-                                               "reproducer": reproducer(case.arm, self.targets[i], seed)})
+                    problems.add(
+                        "exception",
+                        {
+                            "arm": case.arm,
+                            "case": case.case,
+                            "error": err_text,
+                            "trace": trace,
+                            "reproducer": reproducer(case.arm, self.targets[i], seed),
+                        },
+                    )
                 continue
-            check(adapter, self.robot, case, raw, self.targets[i], seed, None if self.truth is None else self.truth[i],
-                  self.tol, problems, (t1 - t0))
+            check(
+                adapter,
+                self.robot,
+                case,
+                raw,
+                self.targets[i],
+                seed,
+                None if self.truth is None else self.truth[i],
+                self.tol,
+                problems,
+                (t1 - t0),
+            )
         case.wall_s += time.perf_counter() - wall
 
     def finish(self) -> Case:
@@ -249,15 +285,32 @@ class CaseRun:
         return self.case
 
 
-def check(adapter: peers.Adapter, robot: Any, case: Case, raw: Any, target: np.ndarray, seed: np.ndarray,
-          truth: np.ndarray | None, tol: float, problems: Problems | None, ns: int) -> None:
+def check(
+    adapter: peers.Adapter,
+    robot: Any,
+    case: Case,
+    raw: Any,
+    target: np.ndarray,
+    seed: np.ndarray,
+    truth: np.ndarray | None,
+    tol: float,
+    problems: Problems | None,
+    ns: int,
+) -> None:
     try:
         ans = adapter.answer(raw, seed)
     except Exception as e:
         case.no_answer += 1
         if problems is not None:
-            problems.add("malformed answer", {"arm": case.arm, "case": case.case, "error": f"{type(e).__name__}: {e}",
-                                              "reproducer": reproducer(case.arm, target, seed)})
+            problems.add(
+                "malformed answer",
+                {
+                    "arm": case.arm,
+                    "case": case.case,
+                    "error": f"{type(e).__name__}: {e}",
+                    "reproducer": reproducer(case.arm, target, seed),
+                },
+            )
         return
     if ans.claimed:
         case.claimed += 1
@@ -267,8 +320,15 @@ def check(adapter: peers.Adapter, robot: Any, case: Case, raw: Any, target: np.n
     if q is None or q.shape != (robot.nq,) or not np.all(np.isfinite(q)):
         case.no_answer += 1
         if problems is not None:
-            problems.add("no joint vector", {"arm": case.arm, "case": case.case, "q": None if q is None else repr(q),
-                                             "reproducer": reproducer(case.arm, target, seed)})
+            problems.add(
+                "no joint vector",
+                {
+                    "arm": case.arm,
+                    "case": case.case,
+                    "q": None if q is None else repr(q),
+                    "reproducer": reproducer(case.arm, target, seed),
+                },
+            )
         return
     err = float(np.linalg.norm(robot.fk(q) - target))
     inside = robot.limits.contains(q)
@@ -283,9 +343,17 @@ def check(adapter: peers.Adapter, robot: Any, case: Case, raw: Any, target: np.n
             case.success += 1
     if problems is None:
         return
-    ex = {"arm": case.arm, "case": case.case, "status": ans.status, "actual_error_m": err,
-          "reported_error_m": ans.reported_error, "inside_limits": inside, "q": q.tolist(),
-          "time_us": ns / 1e3, "reproducer": reproducer(case.arm, target, seed)}
+    ex = {
+        "arm": case.arm,
+        "case": case.case,
+        "status": ans.status,
+        "actual_error_m": err,
+        "reported_error_m": ans.reported_error,
+        "inside_limits": inside,
+        "q": q.tolist(),
+        "time_us": ns / 1e3,
+        "reproducer": reproducer(case.arm, target, seed),
+    }
     if truth is not None:
         ex["a_solution"] = truth.tolist()
     if not inside:
@@ -304,8 +372,15 @@ def check(adapter: peers.Adapter, robot: Any, case: Case, raw: Any, target: np.n
             problems.add(f"unreachable target answered {ans.status!r}", ex)
 
 
-def slow_report(adapter: peers.Adapter, case: Case, prepared: list[Any], targets: np.ndarray, seeds: np.ndarray,
-                problems: Problems, crumb: Crumb) -> None:
+def slow_report(
+    adapter: peers.Adapter,
+    case: Case,
+    prepared: list[Any],
+    targets: np.ndarray,
+    seeds: np.ndarray,
+    problems: Problems,
+    crumb: Crumb,
+) -> None:
     """Report armd calls far slower than the median, if they stay slow when timed again.
 
     On a shared 2-core machine a call now and then takes milliseconds because the process
@@ -326,9 +401,17 @@ def slow_report(adapter: peers.Adapter, case: Case, prepared: list[Any], targets
                 adapter.call(prepared[i], seeds[i])
             again.append(time.perf_counter_ns() - t0)
         if min(again) > limit:
-            problems.add("slow call (slow again when re-timed)", {
-                "arm": case.arm, "case": case.case, "time_us": float(t[k]) / 1e3, "retimed_min_us": min(again) / 1e3,
-                "median_us": med / 1e3, "reproducer": reproducer(case.arm, targets[i], seeds[i])})
+            problems.add(
+                "slow call (slow again when re-timed)",
+                {
+                    "arm": case.arm,
+                    "case": case.case,
+                    "time_us": float(t[k]) / 1e3,
+                    "retimed_min_us": min(again) / 1e3,
+                    "median_us": med / 1e3,
+                    "reproducer": reproducer(case.arm, targets[i], seeds[i]),
+                },
+            )
         else:
             case.transient_slow += 1
 
@@ -343,8 +426,10 @@ def run_batch(robot: Any, batch: Any, s: Samples, tol: float, problems: Problems
         res = batch(robot, s.targets)
         t1 = time.perf_counter_ns()
     except Exception as e:
-        problems.add("solve_ik_batch exception", {"arm": robot.name, "error": f"{type(e).__name__}: {e}",
-                                                  "trace": traceback.format_exc(limit=-3)})
+        problems.add(
+            "solve_ik_batch exception",
+            {"arm": robot.name, "error": f"{type(e).__name__}: {e}", "trace": traceback.format_exc(limit=-3)},
+        )
         out["error"] = f"{type(e).__name__}: {e}"
         return out
     seconds = (t1 - t0) / 1e9
@@ -362,17 +447,33 @@ def run_batch(robot: Any, batch: Any, s: Samples, tol: float, problems: Problems
         out["statuses"] = {str(k): int(v) for k, v in zip(*np.unique(status, return_counts=True), strict=True)}
         bad_ok = np.flatnonzero((status == "ok") & ~ok)
         for i in bad_ok[:MAX_EXAMPLES]:
-            problems.add("batch: status ok but wrong", {
-                "arm": robot.name, "target": s.targets[i].tolist(), "q": q[i].tolist(), "actual_error_m": float(err[i]),
-                "inside_limits": bool(inside[i]),
-                "reproducer": (f"import numpy as np, robots, solvers\narm = robots.load({robot.name!r})\n"
-                               f"t = np.array([{[float(x) for x in s.targets[i]]!r}])\n"
-                               "r = solvers.solve_ik_batch(arm, t)\nprint(r.status, r.q, r.position_error)\n")})
+            problems.add(
+                "batch: status ok but wrong",
+                {
+                    "arm": robot.name,
+                    "target": s.targets[i].tolist(),
+                    "q": q[i].tolist(),
+                    "actual_error_m": float(err[i]),
+                    "inside_limits": bool(inside[i]),
+                    "reproducer": (
+                        f"import numpy as np, robots, solvers\narm = robots.load({robot.name!r})\n"
+                        f"t = np.array([{[float(x) for x in s.targets[i]]!r}])\n"
+                        "r = solvers.solve_ik_batch(arm, t)\nprint(r.status, r.q, r.position_error)\n"
+                    ),
+                },
+            )
         mism = np.flatnonzero(~np.isclose(reported, err, rtol=1e-6, atol=1e-9))
         if len(mism):
-            problems.add("batch: position_error differs from |fk(q) - target|",
-                         {"arm": robot.name, "count": len(mism), "first": int(mism[0]),
-                          "reported": float(reported[mism[0]]), "actual": float(err[mism[0]])})
+            problems.add(
+                "batch: position_error differs from |fk(q) - target|",
+                {
+                    "arm": robot.name,
+                    "count": len(mism),
+                    "first": int(mism[0]),
+                    "reported": float(reported[mism[0]]),
+                    "actual": float(err[mism[0]]),
+                },
+            )
     except Exception as e:
         problems.add("solve_ik_batch malformed result", {"arm": robot.name, "error": f"{type(e).__name__}: {e}"})
         out["error"] = f"malformed result: {type(e).__name__}: {e}"
@@ -391,16 +492,25 @@ def fmt_us(x: float | None) -> str:
 def markdown(results: dict[str, Any]) -> str:
     rows = results["results"]
     meta = results["meta"]
-    lines = [f"IK benchmark: position-only, success = |robot.fk(q) - target| <= {meta['tol']:g} m and q inside "
-             f"every joint limit. Times: perf_counter_ns around one solver call, microseconds.", ""]
+    lines = [
+        f"IK benchmark: position-only, success = |robot.fk(q) - target| <= {meta['tol']:g} m and q inside "
+        f"every joint limit. Times: perf_counter_ns around one solver call, microseconds.",
+        "",
+    ]
     caps = {k: v for k, v in meta["n_per_solver"].items() if v < meta["n"]}
     if caps:
-        lines.append("Samples: n = {:,} per arm and seed; capped: {}.".format(
-            meta["n"], ", ".join(f"{k} at n = {v:,}" for k, v in caps.items())))
+        lines.append(
+            "Samples: n = {:,} per arm and seed; capped: {}.".format(
+                meta["n"], ", ".join(f"{k} at n = {v:,}" for k, v in caps.items())
+            )
+        )
         lines.append("")
-    lines += ["### Reachable targets", "",
-              "| arm | solver | n | success (neutral seed) | median | p99 | success (random seed) | median | p99 |",
-              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [
+        "### Reachable targets",
+        "",
+        "| arm | solver | n | success (neutral seed) | median | p99 | success (random seed) | median | p99 |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     by = {(r["arm"], r["solver"], r["case"]): r for r in rows}
     pairs = sorted({(r["arm"], r["solver"]) for r in rows}, key=lambda p: (p[0], meta["solvers"].index(p[1])))
     for arm, solver in pairs:
@@ -416,13 +526,18 @@ def markdown(results: dict[str, Any]) -> str:
             else:
                 cells += [f"{100 * r['success_rate']:.2f}%", fmt_us(r["median_us"]), fmt_us(r["p99_us"])]
         lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "### Unreachable targets (neutral seed)", "",
-              f"near: {NEAR}x an upper bound of the reach, along directions of reachable points; far: {FAR}x, "
-              f"random directions; axis: {NEAR}-{FAR}x straight above or below the base, 1 um to 1 cm off the "
-              "yaw axis.", "",
-              "| arm | solver | n | median (near) | p99 (near) | median (far) | p99 (far) | median (axis) "
-              "| p99 (axis) | said unreachable |",
-              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [
+        "",
+        "### Unreachable targets (neutral seed)",
+        "",
+        f"near: {NEAR}x an upper bound of the reach, along directions of reachable points; far: {FAR}x, "
+        f"random directions; axis: {NEAR}-{FAR}x straight above or below the base, 1 um to 1 cm off the "
+        "yaw axis.",
+        "",
+        "| arm | solver | n | median (near) | p99 (near) | median (far) | p99 (far) | median (axis) "
+        "| p99 (axis) | said unreachable |",
+        "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
     for arm, solver in pairs:
         cases = [by.get((arm, solver, c)) for c in ("out_near", "out_far", "out_axis")]
         got = [r for r in cases if r is not None]
@@ -444,25 +559,45 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append("| " + " | ".join(cells) + " |")
     at = [by[(arm, solver, "at_limits")] for arm, solver in pairs if (arm, solver, "at_limits") in by]
     if at:
-        lines += ["", "### Reachable targets from configurations on their joint limits (extra; neutral seed)", "",
-                  "Each joint on a bound with probability 1/2, each coupled limit active with probability 1/2.", "",
-                  "| arm | solver | n | success | median | p99 |", "|---|---|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            "### Reachable targets from configurations on their joint limits (extra; neutral seed)",
+            "",
+            "Each joint on a bound with probability 1/2, each coupled limit active with probability 1/2.",
+            "",
+            "| arm | solver | n | success | median | p99 |",
+            "|---|---|---:|---:|---:|---:|",
+        ]
         for r in at:
-            lines.append(f"| {r['arm']} | {r['solver']} | {r['n']:,} | {100 * r['success_rate']:.2f}% | "
-                         f"{fmt_us(r['median_us'])} | {fmt_us(r['p99_us'])} |")
+            lines.append(
+                f"| {r['arm']} | {r['solver']} | {r['n']:,} | {100 * r['success_rate']:.2f}% | "
+                f"{fmt_us(r['median_us'])} | {fmt_us(r['p99_us'])} |"
+            )
     if results.get("batch"):
-        lines += ["", "### armd solve_ik_batch (all reachable targets in one call)", "",
-                  "| arm | n | targets/s | success | statuses |", "|---|---:|---:|---:|---|"]
+        lines += [
+            "",
+            "### armd solve_ik_batch (all reachable targets in one call)",
+            "",
+            "| arm | n | targets/s | success | statuses |",
+            "|---|---:|---:|---:|---|",
+        ]
         for b in results["batch"]:
             if "error" in b and "targets_per_s" not in b:
                 lines.append(f"| {b['arm']} | {b['n']:,} | error: {b['error']} | - | - |")
                 continue
             tps = b.get("targets_per_s")
             rate = b.get("success_rate")
-            lines.append(f"| {b['arm']} | {b['n']:,} | {tps:,.0f} | "
-                         f"{'-' if rate is None else f'{100 * rate:.2f}%'} | {b.get('statuses', '-')} |")
-    lines += ["", "### Models and FK agreement", "", "| arm | solver | model | max FK difference [m] |",
-              "|---|---|---|---:|"]
+            lines.append(
+                f"| {b['arm']} | {b['n']:,} | {tps:,.0f} | "
+                f"{'-' if rate is None else f'{100 * rate:.2f}%'} | {b.get('statuses', '-')} |"
+            )
+    lines += [
+        "",
+        "### Models and FK agreement",
+        "",
+        "| arm | solver | model | max FK difference [m] |",
+        "|---|---|---|---:|",
+    ]
     for arm, info in results["arms"].items():
         for solver, p in info["solvers"].items():
             if "unavailable" in p:
@@ -472,20 +607,27 @@ def markdown(results: dict[str, Any]) -> str:
                 lines.append(f"| {arm} | {solver} | {p['source']} | {'-' if fe is None else f'{fe:.1e}'} |")
     fails = [r for r in rows if r["reachable"] and r["n"] and r["success"] < r["n"]]
     if fails:
-        lines += ["", "### Why reachable targets failed", "",
-                  "| arm | solver | case | failures | off target | outside limits | exceptions | crashes "
-                  "| claimed ok |",
-                  "|---|---|---|---:|---:|---:|---:|---:|---:|"]
+        lines += [
+            "",
+            "### Why reachable targets failed",
+            "",
+            "| arm | solver | case | failures | off target | outside limits | exceptions | crashes | claimed ok |",
+            "|---|---|---|---:|---:|---:|---:|---:|---:|",
+        ]
         for r in fails:
-            lines.append(f"| {r['arm']} | {r['solver']} | {r['case']} | {r['n'] - r['success']} | {r['off_target']} | "
-                         f"{r['outside_limits']} | {r['exceptions']} | {r.get('crashes', 0)} | "
-                         f"{'-' if r['claimed'] is None else r['claimed']} |")
+            lines.append(
+                f"| {r['arm']} | {r['solver']} | {r['case']} | {r['n'] - r['success']} | {r['off_target']} | "
+                f"{r['outside_limits']} | {r['exceptions']} | {r.get('crashes', 0)} | "
+                f"{'-' if r['claimed'] is None else r['claimed']} |"
+            )
     for arm, info in results["arms"].items():
         if info.get("worker_error"):
             lines += ["", f"**{arm}: the run is incomplete**: {info['worker_error'][:500]}"]
     for c in results.get("peer_crashes", []):
-        lines += ["", f"**{c['solver']} crashed the process** on {c['arm']} {c['case']} target {c['index']} "
-                  f"({c['why']})."]
+        lines += [
+            "",
+            f"**{c['solver']} crashed the process** on {c['arm']} {c['case']} target {c['index']} ({c['why']}).",
+        ]
     probs = results.get("problems") or {}
     if probs:
         lines += ["", "### Problems in armd's answers", ""]
@@ -493,8 +635,21 @@ def markdown(results: dict[str, Any]) -> str:
             lines.append(f"- {kind}: {p['count']}")
         for kind, p in probs.items():
             ex = p["examples"][0]
-            detail = {k: ex[k] for k in ("arm", "case", "status", "actual_error_m", "reported_error_m", "inside_limits",
-                                         "time_us", "error", "why") if k in ex}
+            detail = {
+                k: ex[k]
+                for k in (
+                    "arm",
+                    "case",
+                    "status",
+                    "actual_error_m",
+                    "reported_error_m",
+                    "inside_limits",
+                    "time_us",
+                    "error",
+                    "why",
+                )
+                if k in ex
+            }
             lines += ["", f"{kind}, e.g. {detail}:"]
             if "reproducer" in ex:
                 lines += ["```python", ex["reproducer"].rstrip(), "```"]
@@ -504,12 +659,17 @@ def markdown(results: dict[str, Any]) -> str:
     g = meta.get("git") or {}
     changed = g.get("uncommitted_in_solvers_or_robots") or []
     dirty = f" with uncommitted changes in {len(changed)} files of solvers/ or robots/" if changed else ""
-    lines += ["", "Environment: " + ", ".join(f"{k} {v}" for k, v in meta["versions"].items()),
-              f"armd at commit {g.get('commit')}" + dirty + ".",
-              f"Run took {meta['seconds']:.0f} s."]
+    lines += [
+        "",
+        "Environment: " + ", ".join(f"{k} {v}" for k, v in meta["versions"].items()),
+        f"armd at commit {g.get('commit')}" + dirty + ".",
+        f"Run took {meta['seconds']:.0f} s.",
+    ]
     if loads and max(loads) > 1.5:
-        lines.append(f"Warning: the 1-minute load average reached {max(loads):.1f} during the run (this benchmark "
-                     "alone makes it ~1): other processes shared the cores, so times are noisy.")
+        lines.append(
+            f"Warning: the 1-minute load average reached {max(loads):.1f} during the run (this benchmark "
+            "alone makes it ~1): other processes shared the cores, so times are noisy."
+        )
     return "\n".join(lines)
 
 
@@ -517,20 +677,33 @@ def markdown(results: dict[str, Any]) -> str:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--n", type=int, default=None, help=f"random configurations per arm (default {DEFAULT_N:,})")
-    ap.add_argument("--quick", action="store_true",
-                    help=f"smoke run: n = {QUICK_N} unless --n is given, ikpy capped at {QUICK_CAPS['ikpy']}")
+    ap.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"smoke run: n = {QUICK_N} unless --n is given, ikpy capped at {QUICK_CAPS['ikpy']}",
+    )
     ap.add_argument("--arms", default=None, help="comma-separated arms (default: the whole catalogue)")
     ap.add_argument("--solvers", default="armd,rtb,ikpy", help="comma-separated, from: armd, rtb, ikpy")
     ap.add_argument("--out", default=None, help="write every result as JSON to this file")
     ap.add_argument("--tol", type=float, default=1e-6, help="position tolerance for a success [m] (default 1e-6)")
-    ap.add_argument("--unreachable", type=int, default=None,
-                    help="targets per extra case (at_limits, out_near, out_far, out_axis) and arm (default n/40, "
-                         "at least 50; for a capped solver at most max(50, its n/10))")
-    ap.add_argument("--cap", action="append", default=[], metavar="SOLVER=N",
-                    help="at most N samples for SOLVER (default: ikpy=500); N = 0 removes the cap")
+    ap.add_argument(
+        "--unreachable",
+        type=int,
+        default=None,
+        help="targets per extra case (at_limits, out_near, out_far, out_axis) and arm (default n/40, "
+        "at least 50; for a capped solver at most max(50, its n/10))",
+    )
+    ap.add_argument(
+        "--cap",
+        action="append",
+        default=[],
+        metavar="SOLVER=N",
+        help="at most N samples for SOLVER (default: ikpy=500); N = 0 removes the cap",
+    )
     ap.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     ap.add_argument("--no-batch", action="store_true", help="skip solvers.solve_ik_batch")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)  # internal: run one arm, see worker()
@@ -565,14 +738,17 @@ def git_state() -> dict[str, Any]:
 
     def git(*a: str) -> str:
         try:
-            return subprocess.run(["git", "-C", str(HERE.parent), *a], capture_output=True, text=True,
-                                  timeout=10).stdout.strip()
+            return subprocess.run(
+                ["git", "-C", str(HERE.parent), *a], capture_output=True, text=True, timeout=10
+            ).stdout.strip()
         except Exception:
             return ""
 
     changed = git("status", "--porcelain", "--", "solvers", "robots")
-    return {"commit": git("rev-parse", "--short", "HEAD") or None,
-            "uncommitted_in_solvers_or_robots": changed.splitlines() if changed else []}
+    return {
+        "commit": git("rev-parse", "--short", "HEAD") or None,
+        "uncommitted_in_solvers_or_robots": changed.splitlines() if changed else [],
+    }
 
 
 def log(msg: str) -> None:
@@ -584,8 +760,9 @@ CHUNK = 100  # targets per turn when the solvers take turns on a case
 MAX_RESTARTS = 20  # worker crashes tolerated per arm (each skips the target that crashed)
 
 
-def case_inputs(robot: Any, s: Samples, args: argparse.Namespace, solver: str, case: str) -> tuple[
-        np.ndarray, np.ndarray, np.ndarray | None, bool]:
+def case_inputs(
+    robot: Any, s: Samples, args: argparse.Namespace, solver: str, case: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, bool]:
     """(targets, seeds, known solutions or None, reachable) of one case for one solver."""
     n = args.n_per_solver[solver]
     m = min(args.unreachable, n if n == args.n else max(50, n // 10))
@@ -656,8 +833,7 @@ def worker(args: argparse.Namespace) -> int:
             record("solver", solver=solver, info={"unavailable": str(e)})
             log(f"  {solver}: not run: {e}")
             continue
-        record("solver", solver=solver, info={"source": adapters[solver].source,
-                                              "fk_error": adapters[solver].fk_error})
+        record("solver", solver=solver, info={"source": adapters[solver].source, "fk_error": adapters[solver].fk_error})
     for case_name in CASES:
         runs: list[CaseRun] = []
         for solver, adapter in adapters.items():
@@ -665,8 +841,20 @@ def worker(args: argparse.Namespace) -> int:
                 continue
             targets, seeds, truth, reachable = case_inputs(robot, s, args, solver, case_name)
             problems = Problems() if solver == "armd" else None
-            runs.append(CaseRun(adapter, robot, Case(arm_name, solver, case_name, reachable), targets, seeds, truth,
-                                args.tol, problems, crumb, crashed.get((solver, case_name), set())))
+            runs.append(
+                CaseRun(
+                    adapter,
+                    robot,
+                    Case(arm_name, solver, case_name, reachable),
+                    targets,
+                    seeds,
+                    truth,
+                    args.tol,
+                    problems,
+                    crumb,
+                    crashed.get((solver, case_name), set()),
+                )
+            )
         # the solvers take turns, a chunk each (the order rotating), so that the machine's slow
         # stretches fall on every solver alike and the ratios between them are fair
         gc.collect()
@@ -677,13 +865,24 @@ def worker(args: argparse.Namespace) -> int:
         for r in runs:
             case = r.finish()
             row = case.row()
-            record("case", solver=case.solver, case=case_name, row=row,
-                   problems=r.problems.as_json() if r.problems is not None else {})
+            record(
+                "case",
+                solver=case.solver,
+                case=case_name,
+                row=row,
+                problems=r.problems.as_json() if r.problems is not None else {},
+            )
             rate = f"{100 * row['success_rate']:.2f}% ok, " if case.reachable else ""
-            log(f"  {case.solver:5s} {case_name:9s} n={row['n']:<6} {rate}median {fmt_us(row['median_us'])} us, "
-                f"p99 {fmt_us(row['p99_us'])} us ({row['wall_s']:.1f} s)")
-    if ("armd" in args.solvers and not args.no_batch and ("armd", "batch") not in done
-            and ("armd", "batch") not in crashed):
+            log(
+                f"  {case.solver:5s} {case_name:9s} n={row['n']:<6} {rate}median {fmt_us(row['median_us'])} us, "
+                f"p99 {fmt_us(row['p99_us'])} us ({row['wall_s']:.1f} s)"
+            )
+    if (
+        "armd" in args.solvers
+        and not args.no_batch
+        and ("armd", "batch") not in done
+        and ("armd", "batch") not in crashed
+    ):
         batch = peers.armd_batch(robot)
         if batch is not None:
             problems = Problems()
@@ -706,9 +905,24 @@ def run_arm(arm_name: str, args: argparse.Namespace, results: dict[str, Any], pr
     info: dict[str, Any] = {"solvers": {}}
     results["arms"][arm_name] = info
     rows: dict[tuple[str, str], dict[str, Any]] = {}
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--worker", str(work), "--arms", arm_name,
-           "--n", str(args.n), "--solvers", ",".join(args.solvers), "--tol", repr(args.tol),
-           "--unreachable", str(args.unreachable), "--seed", str(args.seed)]
+    cmd = [
+        sys.executable,
+        str(Path(__file__).resolve()),
+        "--worker",
+        str(work),
+        "--arms",
+        arm_name,
+        "--n",
+        str(args.n),
+        "--solvers",
+        ",".join(args.solvers),
+        "--tol",
+        repr(args.tol),
+        "--unreachable",
+        str(args.unreachable),
+        "--seed",
+        str(args.seed),
+    ]
     cmd += [f"--cap={k}={v}" for k, v in args.n_per_solver.items()]
     if args.no_batch:
         cmd.append("--no-batch")
@@ -745,8 +959,14 @@ def run_arm(arm_name: str, args: argparse.Namespace, results: dict[str, Any], pr
             solver, case, index = where[0], where[1], int(where[2])
             crashed.append([solver, case, index])
             log(f"  {solver} crashed the process ({why}) on {case} target {index}: skipping it")
-            example: dict[str, Any] = {"arm": arm_name, "solver": solver, "case": case, "index": index, "why": why,
-                                       "python_trace": fault[-3000:]}
+            example: dict[str, Any] = {
+                "arm": arm_name,
+                "solver": solver,
+                "case": case,
+                "index": index,
+                "why": why,
+                "python_trace": fault[-3000:],
+            }
             if case == "batch":
                 done.append(["armd", "batch"])
                 results["batch"].append({"arm": arm_name, "n": args.n, "error": f"crashed the process ({why})"})
@@ -756,8 +976,9 @@ def run_arm(arm_name: str, args: argparse.Namespace, results: dict[str, Any], pr
                 targets, seeds, _, _ = case_inputs(robot, s, args, solver, case)
                 example["reproducer"] = reproducer(arm_name, targets[index], seeds[index])
                 if solver != "armd":
-                    example["reproducer"] = f"# {solver} adapter (bench/peers.py) on this target and seed\n" + \
-                        example["reproducer"].replace("solve_ik(", f"<{solver}>(")
+                    example["reproducer"] = f"# {solver} adapter (bench/peers.py) on this target and seed\n" + example[
+                        "reproducer"
+                    ].replace("solve_ik(", f"<{solver}>(")
             if solver == "armd":
                 problems.add(f"process crashed ({why})", example)
             else:
@@ -780,15 +1001,26 @@ def main(argv: list[str] | None = None) -> int:
     results: dict[str, Any] = {
         "meta": {
             "date": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
-            "n": args.n, "n_per_solver": args.n_per_solver, "unreachable_per_kind": args.unreachable,
-            "tol": args.tol, "seed": args.seed, "solvers": args.solvers, "arms": args.arms,
-            "rtb_tol": peers.rtb_tolerance(args.tol), "ikpy_tol": peers.Ikpy.IKPY_TOL,
+            "n": args.n,
+            "n_per_solver": args.n_per_solver,
+            "unreachable_per_kind": args.unreachable,
+            "tol": args.tol,
+            "seed": args.seed,
+            "solvers": args.solvers,
+            "arms": args.arms,
+            "rtb_tol": peers.rtb_tolerance(args.tol),
+            "ikpy_tol": peers.Ikpy.IKPY_TOL,
             "versions": peers.versions(),
             "git": git_state(),
-            "env": {k: os.environ[k] for k in ("OPENBLAS_CORETYPE", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-                    if k in os.environ},
+            "env": {
+                k: os.environ[k]
+                for k in ("OPENBLAS_CORETYPE", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+                if k in os.environ
+            },
         },
-        "arms": {}, "results": [], "batch": [],
+        "arms": {},
+        "results": [],
+        "batch": [],
     }
     problems = Problems()
     for arm_name in args.arms:

@@ -54,13 +54,21 @@ VERB_ORDER = ["ik", "fk", "plan", "line", "batch", "info", "robots", "bad", "mov
 
 LOST: list[str] = []  # what each lost request saw (printed by the load processes)
 
+
 def ask(session: Any, key: str, payload: bytes) -> tuple[str, dict[str, Any] | None, float]:
     """('ok' | 'err' | 'lost', reply object, seconds)."""
     import zenoh
 
     t0 = time.perf_counter()
-    replies = list(session.get(key, payload=payload, encoding=zenoh.Encoding.APPLICATION_JSON, timeout=TIMEOUT,
-                               congestion_control=zenoh.CongestionControl.BLOCK))
+    replies = list(
+        session.get(
+            key,
+            payload=payload,
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            timeout=TIMEOUT,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
+    )
     dt = time.perf_counter() - t0
     if len(replies) != 1:
         LOST.append(f"{key}: {len(replies)} replies after {dt:.2f} s")
@@ -77,6 +85,7 @@ def ask(session: Any, key: str, payload: bytes) -> tuple[str, dict[str, Any] | N
 
 
 # -- the load -------------------------------------------------------------------------------
+
 
 class Mix:
     """Requests drawn from the verb mix, with targets every arm can reach (FK of random
@@ -116,11 +125,14 @@ class Mix:
             return "plan", f"armd/{name}/plan", _j({"start": qs[i].tolist(), "goal": {"target": ps[i - 1].tolist()}})
         if r < 0.70:
             goal = ps[i] + np.array([rng.uniform(-0.02, 0.02) for _ in range(3)])
-            return "line", f"armd/{name}/plan", _j({"start": qs[i].tolist(), "goal": {"target": goal.tolist()},
-                                                    "path": "line"})
+            return (
+                "line",
+                f"armd/{name}/plan",
+                _j({"start": qs[i].tolist(), "goal": {"target": goal.tolist()}, "path": "line"}),
+            )
         if r < 0.80:
             k = rng.randrange(len(qs) - 180)
-            targets = ps[k:k + 180].tolist() + self.far
+            targets = ps[k : k + 180].tolist() + self.far
             return "batch", f"armd/{name}/ik", _j({"targets": targets})
         if r < 0.85:
             return "info", f"armd/{name}/info", b"{}"
@@ -186,6 +198,7 @@ def worker_load(endpoint: str, threads: int, seed: int) -> None:
 
 # -- the stopper ----------------------------------------------------------------------------
 
+
 def worker_stopper(endpoint: str) -> None:
     """On 'go <seconds> <cycles>': move, wait 0.4 s, stop (timed), wait for rest; repeat until
     the time is up or the cycles are done (0: no limit)."""
@@ -223,8 +236,7 @@ def worker_stopper(endpoint: str) -> None:
                 honoured += 1  # at rest, short of the goal: the stop, not the move, ended it
             else:
                 failures.append(f"stop not honoured: rest {rest}, goal {goal}")
-    print(json.dumps({"verbs": tally.verbs, "stops_ms": stops, "honoured": honoured, "failures": failures}),
-          flush=True)
+    print(json.dumps({"verbs": tally.verbs, "stops_ms": stops, "honoured": honoured, "failures": failures}), flush=True)
 
 
 def _wait_for_rest(session: Any, timeout: float = 10.0) -> list[float] | None:
@@ -239,9 +251,11 @@ def _wait_for_rest(session: Any, timeout: float = 10.0) -> list[float] | None:
 
 # -- the run --------------------------------------------------------------------------------
 
+
 def _spawn(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, __file__, *args], cwd=ROOT, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, text=True)
+    return subprocess.Popen(
+        [sys.executable, __file__, *args], cwd=ROOT, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+    )
 
 
 def _ready(procs: list[subprocess.Popen[str]]) -> None:
@@ -282,16 +296,19 @@ def _merge(results: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return merged
 
 
-def run(endpoint: str, *, clients: int = 4, threads: int = 4, seconds: float = 20.0,
-        idle_stops: int = 10) -> dict[str, Any]:
+def run(
+    endpoint: str, *, clients: int = 4, threads: int = 4, seconds: float = 20.0, idle_stops: int = 10
+) -> dict[str, Any]:
     """Stops on the idle service, then the load with stops during it: every figure, as a dict."""
     stopper = _spawn("--worker", "stopper", "--endpoint", endpoint)
     _ready([stopper])
     _go([stopper], f"{idle_stops * 10.0} {idle_stops}")
     idle = _result(stopper, idle_stops * 15.0 + 60)
 
-    loaders = [_spawn("--worker", "load", "--endpoint", endpoint, "--threads", str(threads), "--seed", str(k))
-               for k in range(clients)]
+    loaders = [
+        _spawn("--worker", "load", "--endpoint", endpoint, "--threads", str(threads), "--seed", str(k))
+        for k in range(clients)
+    ]
     stopper = _spawn("--worker", "stopper", "--endpoint", endpoint)
     _ready([*loaders, stopper])
     _go(loaders, f"{seconds}")
@@ -300,16 +317,25 @@ def run(endpoint: str, *, clients: int = 4, threads: int = 4, seconds: float = 2
     load = [_result(p, seconds + 120) for p in loaders]
     under = _result(stopper, seconds + 120)
     verbs = _merge([*load, under])
-    return {"endpoint": endpoint, "clients": clients, "threads": threads, "seconds": seconds,
-            "verbs": verbs, "replies": sum(v["ok"] + sum(v["codes"].values()) for v in verbs.values()),
-            "lost": sum(v["lost"] for v in verbs.values()), "wrong": sum(v["wrong"] for v in verbs.values()),
-            "stop_idle_ms": idle["stops_ms"], "stop_load_ms": under["stops_ms"],
-            "stops_honoured": {"idle": idle["honoured"], "load": under["honoured"]},
-            "stop_failures": idle["failures"] + under["failures"],
-            "lost_detail": [d for r in load for d in r.get("lost_detail", [])]}
+    return {
+        "endpoint": endpoint,
+        "clients": clients,
+        "threads": threads,
+        "seconds": seconds,
+        "verbs": verbs,
+        "replies": sum(v["ok"] + sum(v["codes"].values()) for v in verbs.values()),
+        "lost": sum(v["lost"] for v in verbs.values()),
+        "wrong": sum(v["wrong"] for v in verbs.values()),
+        "stop_idle_ms": idle["stops_ms"],
+        "stop_load_ms": under["stops_ms"],
+        "stops_honoured": {"idle": idle["honoured"], "load": under["honoured"]},
+        "stop_failures": idle["failures"] + under["failures"],
+        "lost_detail": [d for r in load for d in r.get("lost_detail", [])],
+    }
 
 
 # -- report ---------------------------------------------------------------------------------
+
 
 def _pct(ms: list[float]) -> tuple[float, float, float]:
     a = np.array(ms) if ms else np.array([np.nan])
@@ -317,29 +343,37 @@ def _pct(ms: list[float]) -> tuple[float, float, float]:
 
 
 def report(r: dict[str, Any]) -> str:
-    lines = [f"{r['clients']} client processes x {r['threads']} threads, {r['seconds']:g} s, "
-             f"service at {r['endpoint']}", "",
-             "| verb | replies | per s | p50 ms | p99 ms | max ms | ok | error codes | lost | wrong |",
-             "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|"]
+    lines = [
+        f"{r['clients']} client processes x {r['threads']} threads, {r['seconds']:g} s, service at {r['endpoint']}",
+        "",
+        "| verb | replies | per s | p50 ms | p99 ms | max ms | ok | error codes | lost | wrong |",
+        "|---|---:|---:|---:|---:|---:|---:|---|---:|---:|",
+    ]
     verbs = r["verbs"]
     for verb in sorted(verbs, key=lambda v: VERB_ORDER.index(v) if v in VERB_ORDER else 99):
         v = verbs[verb]
         n = len(v["ms"])
         p50, p99, mx = _pct(v["ms"])
         codes = ", ".join(f"{c} {k}" for c, k in sorted(v["codes"].items())) or "-"
-        lines.append(f"| {verb} | {n:,} | {n / r['seconds']:.0f} | {p50:.1f} | {p99:.1f} | {mx:.1f} | {v['ok']:,} | "
-                     f"{codes} | {v['lost']} | {v['wrong']} |")
-    lines.append(f"| all | {r['replies']:,} | {r['replies'] / r['seconds']:.0f} | | | | | | {r['lost']} | "
-                 f"{r['wrong']} |")
+        lines.append(
+            f"| {verb} | {n:,} | {n / r['seconds']:.0f} | {p50:.1f} | {p99:.1f} | {mx:.1f} | {v['ok']:,} | "
+            f"{codes} | {v['lost']} | {v['wrong']} |"
+        )
+    lines.append(
+        f"| all | {r['replies']:,} | {r['replies'] / r['seconds']:.0f} | | | | | | {r['lost']} | {r['wrong']} |"
+    )
     i50, i99, imx = _pct(r["stop_idle_ms"])
     l50, l99, lmx = _pct(r["stop_load_ms"])
-    lines += ["", "| stop round trip | n | p50 ms | p99 ms | max ms | came to rest short of the goal |",
-              "|---|---:|---:|---:|---:|---:|",
-              f"| idle service | {len(r['stop_idle_ms'])} | {i50:.1f} | {i99:.1f} | {imx:.1f} | "
-              f"{r['stops_honoured']['idle']}/{len(r['stop_idle_ms'])} |",
-              f"| under load | {len(r['stop_load_ms'])} | {l50:.1f} | {l99:.1f} | {lmx:.1f} | "
-              f"{r['stops_honoured']['load']}/{len(r['stop_load_ms'])} |",
-              f"| ratio load / idle | | {l50 / i50:.1f}x | {l99 / i99:.1f}x | {lmx / imx:.1f}x | |"]
+    lines += [
+        "",
+        "| stop round trip | n | p50 ms | p99 ms | max ms | came to rest short of the goal |",
+        "|---|---:|---:|---:|---:|---:|",
+        f"| idle service | {len(r['stop_idle_ms'])} | {i50:.1f} | {i99:.1f} | {imx:.1f} | "
+        f"{r['stops_honoured']['idle']}/{len(r['stop_idle_ms'])} |",
+        f"| under load | {len(r['stop_load_ms'])} | {l50:.1f} | {l99:.1f} | {lmx:.1f} | "
+        f"{r['stops_honoured']['load']}/{len(r['stop_load_ms'])} |",
+        f"| ratio load / idle | | {l50 / i50:.1f}x | {l99 / i99:.1f}x | {lmx / imx:.1f}x | |",
+    ]
     if r["stop_failures"]:
         lines += ["", "stopper failures: " + "; ".join(r["stop_failures"][:5])]
     return "\n".join(lines)
@@ -368,8 +402,12 @@ def main() -> None:
     endpoint = args.endpoint
     if endpoint is None:
         endpoint = free_endpoint()
-        service = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim",
-                                    *args.serve_args.split()], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+        service = subprocess.Popen(
+            [sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim", *args.serve_args.split()],
+            cwd=ROOT,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
         assert service.stdout is not None
         line = service.stdout.readline()
         if "armd serving" not in line:
@@ -377,16 +415,17 @@ def main() -> None:
     try:
         before = rss_mb(service.pid) if service else float("nan")
         t0 = time.monotonic()
-        r = run(endpoint, clients=args.clients, threads=args.threads, seconds=args.seconds,
-                idle_stops=args.idle_stops)
+        r = run(endpoint, clients=args.clients, threads=args.threads, seconds=args.seconds, idle_stops=args.idle_stops)
         r["wall_s"] = time.monotonic() - t0
         if service:
             r["service_rss_mb"] = {"before": before, "after": rss_mb(service.pid)}
         r["load_avg"] = os.getloadavg()
         print(report(r))
         if service:
-            print(f"\nservice resident memory: {before:.0f} MB before, {r['service_rss_mb']['after']:.0f} MB after; "
-                  f"load average {r['load_avg'][0]:.2f}")
+            print(
+                f"\nservice resident memory: {before:.0f} MB before, {r['service_rss_mb']['after']:.0f} MB after; "
+                f"load average {r['load_avg'][0]:.2f}"
+            )
         if args.out:
             Path(args.out).write_text(json.dumps(r, indent=1))
     finally:

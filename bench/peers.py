@@ -206,8 +206,10 @@ class Adapter:
     def _check_fk(self) -> None:
         self.fk_error = fk_agreement(self.robot, self.peer_fk, self.indices)
         if not self.fk_error <= FK_AGREEMENT:
-            raise Unavailable(f"{self.name} FK differs from robot.fk by {self.fk_error:.3g} m on {self.robot.name} "
-                              f"(model from {self.source})")
+            raise Unavailable(
+                f"{self.name} FK differs from robot.fk by {self.fk_error:.3g} m on {self.robot.name} "
+                f"(model from {self.source})"
+            )
 
     def peer_fk(self, q_peer: FloatArray) -> FloatArray:
         raise NotImplementedError
@@ -235,8 +237,7 @@ class Armd(Adapter):
 
     def answer(self, raw: Any, seed: FloatArray) -> Answer:
         q = None if raw.q is None else np.asarray(raw.q, dtype=np.float64)
-        return Answer(q=q, claimed=raw.status == "ok", status=str(raw.status),
-                      reported_error=float(raw.position_error))
+        return Answer(q=q, claimed=raw.status == "ok", status=str(raw.status), reported_error=float(raw.position_error))
 
 
 def armd_batch(robot: Any) -> Any:
@@ -361,8 +362,7 @@ class Ikpy(Adapter):
             warnings.simplefilter("ignore")
             probe = ikpy.chain.Chain.from_urdf_file(path, base_elements=[self.robot.base_frame])
             mask = [link.name in self.robot.joint_names for link in probe.links]
-            chain = ikpy.chain.Chain.from_urdf_file(path, base_elements=[self.robot.base_frame],
-                                                    active_links_mask=mask)
+            chain = ikpy.chain.Chain.from_urdf_file(path, base_elements=[self.robot.base_frame], active_links_mask=mask)
         names = [link.name for link in chain.links]
         if [n for n in names if n in self.robot.joint_names] != list(self.robot.joint_names):
             return None
@@ -376,11 +376,20 @@ class Ikpy(Adapter):
 
         links: list[Any] = [OriginLink()]
         for j in chain.joints:
-            links.append(URDFLink(name=self.robot.joint_names[j.index], origin_translation=np.array(j.origin),
-                                  origin_orientation=np.zeros(3), rotation=np.array(j.axis),
-                                  joint_type="revolute"))
-        links.append(URDFLink(name="tip", origin_translation=np.array(chain.tip), origin_orientation=np.zeros(3),
-                              joint_type="fixed"))
+            links.append(
+                URDFLink(
+                    name=self.robot.joint_names[j.index],
+                    origin_translation=np.array(j.origin),
+                    origin_orientation=np.zeros(3),
+                    rotation=np.array(j.axis),
+                    joint_type="revolute",
+                )
+            )
+        links.append(
+            URDFLink(
+                name="tip", origin_translation=np.array(chain.tip), origin_orientation=np.zeros(3), joint_type="fixed"
+            )
+        )
         mask = [False] + [True] * len(chain.joints) + [False]
         self.active = list(range(1, len(chain.joints) + 1))
         self.indices = chain.indices
@@ -398,8 +407,9 @@ class Ikpy(Adapter):
         return np.asarray(self.chain.forward_kinematics(self._chain_vector(q_peer))[:3, 3], dtype=np.float64)
 
     def call(self, prepared: Any, seed: FloatArray) -> Any:
-        return self.chain.inverse_kinematics(prepared, initial_position=self._chain_vector(seed[self.indices]),
-                                             **self._kwargs)
+        return self.chain.inverse_kinematics(
+            prepared, initial_position=self._chain_vector(seed[self.indices]), **self._kwargs
+        )
 
     def answer(self, raw: Any, seed: FloatArray) -> Answer:
         return Answer(q=self._full(np.asarray(raw, dtype=np.float64)[self.active], seed))

@@ -44,8 +44,10 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=300, help="plans per arm and kind")
     args = ap.parse_args()
     rng = np.random.default_rng(7)
-    print("| arm | p2p median us | p2p p99 us | bare Ruckig median us | p99 | line 0.2 m median us | p99 | "
-          "lines planned |")
+    print(
+        "| arm | p2p median us | p2p p99 us | bare Ruckig median us | p99 | line 0.2 m median us | p99 | "
+        "lines planned |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     for name in robots.names():
         arm = robots.load(name)

@@ -53,8 +53,19 @@ class OSQPRefiner(QPRefiner):
             h = np.concatenate([self.c_hi - cq, cq - self.c_lo])
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            x = qpsolvers.solve_qp(sp.csc_matrix(H), f, G, h, lb=lo, ub=hi, solver="osqp",
-                                   eps_abs=1e-9, eps_rel=1e-9, polish=True, verbose=False)
+            x = qpsolvers.solve_qp(
+                sp.csc_matrix(H),
+                f,
+                G,
+                h,
+                lb=lo,
+                ub=hi,
+                solver="osqp",
+                eps_abs=1e-9,
+                eps_rel=1e-9,
+                polish=True,
+                verbose=False,
+            )
         if x is None:
             return np.zeros_like(q)
         return np.clip(x, lo, hi)
@@ -106,8 +117,12 @@ def run(arm: robots.Robot, method: str, starts: np.ndarray, targets: np.ndarray)
             iters.append(r.iterations)
             ok += r.position_error <= 1e-9 and arm.limits.contains(r.q, tol=0.0)
     us = np.array(times) / 1e3
-    return {"success": ok / len(starts), "median_us": float(np.median(us)), "p99_us": float(np.percentile(us, 99)),
-            "iterations": float(np.median(iters))}
+    return {
+        "success": ok / len(starts),
+        "median_us": float(np.median(us)),
+        "p99_us": float(np.percentile(us, 99)),
+        "iterations": float(np.median(iters)),
+    }
 
 
 @contextlib.contextmanager
@@ -144,16 +159,19 @@ def main() -> None:
         starts = np.array([QPRefiner(arm).project(s) for s in starts])
         base = None
         for method in args.methods.split(","):
-            if method == "placo" and any(arm.model.joints[i].shortname() == "JointModelMimic"
-                                         for i in range(arm.model.njoints)):
+            if method == "placo" and any(
+                arm.model.joints[i].shortname() == "JointModelMimic" for i in range(arm.model.njoints)
+            ):
                 print(f"| {name} | placo | (mimic joints: not supported by PlaCo's URDF parser) | | | | |")
                 continue
             with quiet_stdout():
                 res = run(arm, method, starts, targets)
             base = res["median_us"] if method == "daqp" else base
             ratio = f"{res['median_us'] / base:.1f}x" if base else ""
-            print(f"| {name} | {method} | {100 * res['success']:.1f}% | {res['median_us']:.0f} | "
-                  f"{res['p99_us']:.0f} | {res['iterations']:.0f} | {ratio} |")
+            print(
+                f"| {name} | {method} | {100 * res['success']:.1f}% | {res['median_us']:.0f} | "
+                f"{res['p99_us']:.0f} | {res['iterations']:.0f} | {ratio} |"
+            )
 
 
 if __name__ == "__main__":

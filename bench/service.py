@@ -65,8 +65,14 @@ def echo_server(endpoint: str, embedded: bool, ready: mp.Event, stop: mp.Event) 
     conf = network_config(listen=[endpoint]) if embedded else network_config(connect=[endpoint])
     with zenoh.open(conf) as session:
         q = session.declare_queryable(
-            "bench/echo", lambda query: query.reply(query.key_expr, query.payload.to_bytes() if query.payload else b"",
-                                                    encoding=zenoh.Encoding.APPLICATION_JSON), complete=True)
+            "bench/echo",
+            lambda query: query.reply(
+                query.key_expr,
+                query.payload.to_bytes() if query.payload else b"",
+                encoding=zenoh.Encoding.APPLICATION_JSON,
+            ),
+            complete=True,
+        )
         ready.set()  # type: ignore[attr-defined]
         stop.wait()  # type: ignore[attr-defined]
         q.undeclare()
@@ -81,8 +87,11 @@ def latency(endpoint: str, echo_endpoint: str, n: int, out: mp.Queue) -> None:  
     ts = targets(n)
     ik_us, raw_us, echo_us = [], [], []
     with ArmClient(endpoint, timeout=10.0) as c, contextlib.ExitStack() as stack:
-        echo = c.session if echo_endpoint == endpoint else stack.enter_context(
-            zenoh.open(client_config([echo_endpoint], None)))
+        echo = (
+            c.session
+            if echo_endpoint == endpoint
+            else stack.enter_context(zenoh.open(client_config([echo_endpoint], None)))
+        )
         for t in ts[:20]:  # warm-up
             c.ik("insomniac", t)
         for t in ts:  # the three interleaved, so that the machine's noise falls on all of them alike
@@ -176,8 +185,11 @@ def start_servers(embedded: bool, stack: contextlib.ExitStack) -> tuple[str, str
 
 
 def measure(embedded: bool, args: argparse.Namespace) -> None:
-    title = ("the service's own router (the default `armd serve`): client process -> server process" if embedded
-             else "a standalone router between them: client process -> router -> server process")
+    title = (
+        "the service's own router (the default `armd serve`): client process -> server process"
+        if embedded
+        else "a standalone router between them: client process -> router -> server process"
+    )
     with contextlib.ExitStack() as stack:
         endpoint, echo_endpoint = start_servers(embedded, stack)
         ctx = mp.get_context("spawn")
@@ -191,11 +203,15 @@ def measure(embedded: bool, args: argparse.Namespace) -> None:
         print()
         print("| round trip | p50 us | p99 us | p50 / echo | p99 / echo |")
         print("|---|---:|---:|---:|---:|")
-        for label, a in (("armd ik, a Zenoh get + json.loads (any language's client)", raw),
-                         ("armd ik, ArmClient.ik (typed reply, NumPy arrays)", ik),
-                         ("bare Zenoh echo, same payload (the floor)", ec)):
-            print(f"| {label} | {np.median(a):.0f} | {np.percentile(a, 99):.0f} | "
-                  f"{np.median(a) / np.median(ec):.2f}x | {np.percentile(a, 99) / np.percentile(ec, 99):.2f}x |")
+        for label, a in (
+            ("armd ik, a Zenoh get + json.loads (any language's client)", raw),
+            ("armd ik, ArmClient.ik (typed reply, NumPy arrays)", ik),
+            ("bare Zenoh echo, same payload (the floor)", ec),
+        ):
+            print(
+                f"| {label} | {np.median(a):.0f} | {np.percentile(a, 99):.0f} | "
+                f"{np.median(a) / np.median(ec):.2f}x | {np.percentile(a, 99) / np.percentile(ec, 99):.2f}x |"
+            )
         print()
         print(f"| throughput, {args.clients} client processes, {args.seconds:g} s each | replies/s | lost | not ok |")
         print("|---|---:|---:|---:|")
@@ -206,16 +222,16 @@ def measure(embedded: bool, args: argparse.Namespace) -> None:
         ]
         for label, target, where, extra in runs:
             q = ctx.Queue()
-            procs = [ctx.Process(target=target, args=(where, args.seconds, k, q, *extra))
-                     for k in range(args.clients)]
+            procs = [ctx.Process(target=target, args=(where, args.seconds, k, q, *extra)) for k in range(args.clients)]
             for pr in procs:
                 pr.start()
             results = [q.get(timeout=args.seconds + 300) for _ in procs]
             for pr in procs:
                 pr.join()
             done = sum(r[0] for r in results)
-            print(f"| {label} | {done / args.seconds:.0f} | {sum(r[1] for r in results)} | "
-                  f"{sum(r[2] for r in results)} |")
+            print(
+                f"| {label} | {done / args.seconds:.0f} | {sum(r[1] for r in results)} | {sum(r[2] for r in results)} |"
+            )
         print()
 
 
@@ -224,9 +240,13 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=2000, help="latency samples")
     ap.add_argument("--seconds", type=float, default=5.0, help="throughput run length")
     ap.add_argument("--clients", type=int, default=4)
-    ap.add_argument("--topology", choices=("both", "embedded", "routed"), default="both",
-                    help="embedded: the service's own router, as `armd serve` runs by default; routed: a "
-                         "standalone `armd router` between clients and servers (default: both, in turn)")
+    ap.add_argument(
+        "--topology",
+        choices=("both", "embedded", "routed"),
+        default="both",
+        help="embedded: the service's own router, as `armd serve` runs by default; routed: a "
+        "standalone `armd router` between clients and servers (default: both, in turn)",
+    )
     args = ap.parse_args()
     for embedded in (True, False):
         if args.topology in ("both", "embedded" if embedded else "routed"):

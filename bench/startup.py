@@ -45,9 +45,14 @@ def serve_once(env: dict[str, str], path: Path | None = None) -> tuple[float, fl
     if path is not None:  # (the package from another folder: before the installed one on sys.path)
         env["PYTHONPATH"] = str(path)
     started = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-m", "armd", "serve", "--listen", f"tcp/127.0.0.1:{_port()}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, env=env,
-                            cwd=path or ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd", "serve", "--listen", f"tcp/127.0.0.1:{_port()}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+        cwd=path or ROOT,
+    )
     try:
         assert proc.stdout is not None
         for line in proc.stdout:
@@ -76,8 +81,11 @@ def _checkout(where: Path) -> Path:
 def _show(name: str, runs: list[tuple[float, float]]) -> None:
     t = [r[0] for r in runs]
     m = [r[1] for r in runs]
-    print(f"{name:<26} ready median {statistics.median(t):6.2f} s  max {max(t):6.2f} s   "
-          f"RSS median {statistics.median(m):5.0f} MB  max {max(m):5.0f} MB   ({len(runs)} runs)", flush=True)
+    print(
+        f"{name:<26} ready median {statistics.median(t):6.2f} s  max {max(t):6.2f} s   "
+        f"RSS median {statistics.median(m):5.0f} MB  max {max(m):5.0f} MB   ({len(runs)} runs)",
+        flush=True,
+    )
 
 
 def main() -> None:
@@ -96,9 +104,12 @@ def main() -> None:
         other = _checkout(Path(tmp) / "other")
         _show("jit, another checkout", [serve_once(jit, other) for _ in range(args.runs)])
     t, m = statistics.median(r[0] for r in native), statistics.median(r[1] for r in native)
-    print(f"native vs jit cold: {t / cold[0][0]:.3f}x the time, {m / cold[0][1]:.2f}x the memory; "
-          f"vs jit warm: {t / statistics.median(r[0] for r in warm):.2f}x the time, "
-          f"{m / statistics.median(r[1] for r in warm):.2f}x the memory", flush=True)
+    print(
+        f"native vs jit cold: {t / cold[0][0]:.3f}x the time, {m / cold[0][1]:.2f}x the memory; "
+        f"vs jit warm: {t / statistics.median(r[0] for r in warm):.2f}x the time, "
+        f"{m / statistics.median(r[1] for r in warm):.2f}x the memory",
+        flush=True,
+    )
 
 
 if __name__ == "__main__":

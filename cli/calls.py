@@ -49,9 +49,20 @@ def cmd_ik(args: argparse.Namespace) -> int:
     seed = numbers(args.seed, "seed") if args.seed else None
     with _client(args) as c:
         r = c.ik(args.robot, target, approach=approach(args.approach), seed=seed)
-    _show(args, r.raw, [("status", r.status), ("q [rad]", r.q), ("position error [m]", r.position_error),
-                        ("reached [m]", r.reached), ("pitch [rad]", r.pitch), ("branch", r.branch),
-                        ("other branches", len(r.branches)), ("reason", r.reason or "")])
+    _show(
+        args,
+        r.raw,
+        [
+            ("status", r.status),
+            ("q [rad]", r.q),
+            ("position error [m]", r.position_error),
+            ("reached [m]", r.reached),
+            ("pitch [rad]", r.pitch),
+            ("branch", r.branch),
+            ("other branches", len(r.branches)),
+            ("reason", r.reason or ""),
+        ],
+    )
     return 0 if r.ok else 1
 
 
@@ -70,9 +81,19 @@ def cmd_plan(args: argparse.Namespace) -> int:
             from armd.tools.plot import plot_reply  # (matplotlib: the view extra; main() says so)
 
             plot_reply(c, args.robot, t, args.plot)
-    _show(args, t.raw, [("path", t.path), ("duration [s]", t.duration), ("samples", len(t.times)),
-                        ("rate [Hz]", t.rate_hz), ("end [rad]", t.position[-1]), ("end commands", t.commands[-1])]
-          + ([("plot", args.plot)] if args.plot else []))
+    _show(
+        args,
+        t.raw,
+        [
+            ("path", t.path),
+            ("duration [s]", t.duration),
+            ("samples", len(t.times)),
+            ("rate [Hz]", t.rate_hz),
+            ("end [rad]", t.position[-1]),
+            ("end commands", t.commands[-1]),
+        ]
+        + ([("plot", args.plot)] if args.plot else []),
+    )
     return 0
 
 
@@ -81,16 +102,33 @@ def cmd_move(args: argparse.Namespace) -> int:
         r = c.move(args.robot, goal(args), path=args.path, speed=args.speed)
         if args.wait:
             c.wait_until_still(args.robot, r.goal, timeout=r.duration + 10.0)
-    _show(args, r.raw, [("trajectory", r.id), ("path", r.path), ("duration [s]", r.duration),
-                        ("goal [rad]", r.goal), ("planned from", r.start_source)])
+    _show(
+        args,
+        r.raw,
+        [
+            ("trajectory", r.id),
+            ("path", r.path),
+            ("duration [s]", r.duration),
+            ("goal [rad]", r.goal),
+            ("planned from", r.start_source),
+        ],
+    )
     return 0
 
 
 def cmd_stop(args: argparse.Namespace) -> int:
     with _client(args) as c:
         r = c.stop(args.robot)
-    _show(args, r, [("trajectory", r["id"]), ("stops in [s]", r["duration"]), ("rest [rad]", r["rest"]),
-                    ("adapters", r["adapters"])])
+    _show(
+        args,
+        r,
+        [
+            ("trajectory", r["id"]),
+            ("stops in [s]", r["duration"]),
+            ("rest [rad]", r["rest"]),
+            ("adapters", r["adapters"]),
+        ],
+    )
     return 0
 
 
@@ -176,15 +214,17 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     _client_args(p)
     p.set_defaults(func=cmd_stop)
 
-    p = sub.add_parser("estop", parents=[log_args],
-                       help="emergency stop, straight to the arm's adapters (no service needed)")
+    p = sub.add_parser(
+        "estop", parents=[log_args], help="emergency stop, straight to the arm's adapters (no service needed)"
+    )
     p.add_argument("robot")
     p.add_argument("--wait", type=float, default=1.0, help="seconds to wait for the adapters to answer")
     _client_args(p)
     p.set_defaults(func=cmd_estop)
 
-    p = sub.add_parser("unlock", parents=[log_args],
-                       help="tell an adapter that lost the arm's position where the arm is")
+    p = sub.add_parser(
+        "unlock", parents=[log_args], help="tell an adapter that lost the arm's position where the arm is"
+    )
     p.add_argument("robot")
     how = p.add_mutually_exclusive_group(required=True)
     how.add_argument("--home", action="store_true", help="run the controller's homing cycle ($H)")

@@ -50,8 +50,9 @@ def approach(value: str | None) -> object:
     try:
         return float(value)
     except ValueError:
-        raise BadRequest(f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}",
-                                field="approach") from None
+        raise BadRequest(
+            f"approach must be parallel, perpendicular, free or a pitch [rad], got {value!r}", field="approach"
+        ) from None
 
 
 def goal(args: argparse.Namespace) -> object:
@@ -64,13 +65,23 @@ def goal(args: argparse.Namespace) -> object:
 
 
 def network_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--listen", action="append", metavar="ENDPOINT",
-                   help="endpoint to listen on (default: the --config file's, else tcp/127.0.0.1:7447 for the "
-                   "embedded router)")
-    p.add_argument("--connect", action="append", metavar="ENDPOINT",
-                   help="join an existing Zenoh network through this endpoint instead of embedding a router")
-    p.add_argument("--config", help="a Zenoh configuration file (JSON5), used as it is: its endpoints, TLS, "
-                   "credentials; --listen/--connect, where given, replace its endpoints")
+    p.add_argument(
+        "--listen",
+        action="append",
+        metavar="ENDPOINT",
+        help="endpoint to listen on (default: the --config file's, else tcp/127.0.0.1:7447 for the embedded router)",
+    )
+    p.add_argument(
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="join an existing Zenoh network through this endpoint instead of embedding a router",
+    )
+    p.add_argument(
+        "--config",
+        help="a Zenoh configuration file (JSON5), used as it is: its endpoints, TLS, "
+        "credentials; --listen/--connect, where given, replace its endpoints",
+    )
     p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
 
 

@@ -19,8 +19,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from armd.service.server import Service
     from armd.service.zconfig import network_config
 
-    limits = Limits(max_payload_bytes=args.max_payload, max_batch=args.max_batch, max_depth=args.max_depth,
-                    max_waypoints=args.max_waypoints, max_samples=args.max_samples, deadline=args.deadline)
+    limits = Limits(
+        max_payload_bytes=args.max_payload,
+        max_batch=args.max_batch,
+        max_depth=args.max_depth,
+        max_waypoints=args.max_waypoints,
+        max_samples=args.max_samples,
+        deadline=args.deadline,
+    )
     if args.workers < 1:
         raise BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
     arms = all_robots(args.robots_dir)
@@ -107,28 +113,52 @@ def _join(args: argparse.Namespace, stop: threading.Event) -> Any:
         except zenoh.ZError as e:
             if not told:
                 at = ", ".join(connect) or "the configured endpoints"
-                print(f"armd: no Zenoh router answers at {at} yet ({str(e).split(' at ')[0]}); retrying every "
-                      "second (Ctrl-C to give up)", file=sys.stderr, flush=True)
+                print(
+                    f"armd: no Zenoh router answers at {at} yet ({str(e).split(' at ')[0]}); retrying every "
+                    "second (Ctrl-C to give up)",
+                    file=sys.stderr,
+                    flush=True,
+                )
                 told = True
             stop.wait(1.0)
     return None
 
 
-def _make_adapter(args: argparse.Namespace, session: object, arm: Robot, port: object = None) -> Any:
+def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: object = None) -> Any:
     if args.kind == "sim":
         from armd.adapters.sim import SimAdapter
 
-        return SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale,  # type: ignore[arg-type]
-                          lag=args.lag)
+        return SimAdapter(
+            session,
+            arm,
+            prefix=args.prefix,
+            time_scale=args.time_scale,
+            lag=args.lag,
+        )
     if args.kind == "ssc32":
         from armd.adapters.ssc32 import SSC32Adapter
 
-        return SSC32Adapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
-                            state_dir=args.state_dir, serial_port=port)
+        return SSC32Adapter(
+            session,
+            arm,
+            args.port,
+            baud=args.baud,
+            prefix=args.prefix,
+            state_dir=args.state_dir,
+            serial_port=port,
+        )
     from armd.adapters.grbl import GrblAdapter
 
-    return GrblAdapter(session, arm, args.port, baud=args.baud, prefix=args.prefix,  # type: ignore[arg-type]
-                       serial_port=port, assume_rest=args.assume_rest, home=args.home)
+    return GrblAdapter(
+        session,
+        arm,
+        args.port,
+        baud=args.baud,
+        prefix=args.prefix,
+        serial_port=port,
+        assume_rest=args.assume_rest,
+        home=args.home,
+    )
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -154,50 +184,102 @@ def _limit_args(p: argparse.ArgumentParser) -> None:
 
     d = Limits()
     g = p.add_argument_group("limits", "what one request may ask (docs/reliability.md)")
-    g.add_argument("--max-payload", type=int, default=d.max_payload_bytes, metavar="BYTES",
-                   help=f"largest request payload (default {d.max_payload_bytes:,})")
-    g.add_argument("--max-batch", type=int, default=d.max_batch, metavar="N",
-                   help=f"most targets in one IK batch (default {d.max_batch:,})")
-    g.add_argument("--max-waypoints", type=int, default=d.max_waypoints, metavar="N",
-                   help=f"most via points in one plan or move (default {d.max_waypoints})")
-    g.add_argument("--max-samples", type=int, default=d.max_samples, metavar="N",
-                   help=f"most samples in one trajectory (default {d.max_samples:,})")
-    g.add_argument("--max-depth", type=int, default=d.max_depth, metavar="N",
-                   help=f"deepest JSON nesting of a request (default {d.max_depth})")
-    g.add_argument("--deadline", type=float, default=d.deadline, metavar="SECONDS",
-                   help=f"time allowed per request from its arrival, queue included (default {d.deadline:g})")
-    g.add_argument("--workers", type=int, default=4, metavar="N",
-                   help="threads serving requests (default 4; stop has two of its own)")
+    g.add_argument(
+        "--max-payload",
+        type=int,
+        default=d.max_payload_bytes,
+        metavar="BYTES",
+        help=f"largest request payload (default {d.max_payload_bytes:,})",
+    )
+    g.add_argument(
+        "--max-batch",
+        type=int,
+        default=d.max_batch,
+        metavar="N",
+        help=f"most targets in one IK batch (default {d.max_batch:,})",
+    )
+    g.add_argument(
+        "--max-waypoints",
+        type=int,
+        default=d.max_waypoints,
+        metavar="N",
+        help=f"most via points in one plan or move (default {d.max_waypoints})",
+    )
+    g.add_argument(
+        "--max-samples",
+        type=int,
+        default=d.max_samples,
+        metavar="N",
+        help=f"most samples in one trajectory (default {d.max_samples:,})",
+    )
+    g.add_argument(
+        "--max-depth",
+        type=int,
+        default=d.max_depth,
+        metavar="N",
+        help=f"deepest JSON nesting of a request (default {d.max_depth})",
+    )
+    g.add_argument(
+        "--deadline",
+        type=float,
+        default=d.deadline,
+        metavar="SECONDS",
+        help=f"time allowed per request from its arrival, queue included (default {d.deadline:g})",
+    )
+    g.add_argument(
+        "--workers",
+        type=int,
+        default=4,
+        metavar="N",
+        help="threads serving requests (default 4; stop has two of its own)",
+    )
 
 
 def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
-    p = sub.add_parser("serve", parents=[log_args],
-                       help="run the service (embeds a Zenoh router unless --connect is given)")
+    p = sub.add_parser(
+        "serve", parents=[log_args], help="run the service (embeds a Zenoh router unless --connect is given)"
+    )
     network_args(p)
     p.add_argument("--robots-dir", help="a folder of your own arms, served with the catalogue")
-    p.add_argument("-v", "--verbose", action="store_const", const="debug", dest="log_level", default=argparse.SUPPRESS,
-                   help="log one line per request (--log-level debug)")
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_const",
+        const="debug",
+        dest="log_level",
+        default=argparse.SUPPRESS,
+        help="log one line per request (--log-level debug)",
+    )
     p.add_argument("--sim", action="store_true", help="also run a simulated arm (adapter) for every arm")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (with --sim)")
     _limit_args(p)
     p.set_defaults(func=cmd_serve, log_default="info")
 
     p = sub.add_parser("adapter", parents=[log_args], help="run a hardware adapter daemon for one arm")
-    p.add_argument("kind", choices=["sim", "ssc32", "grbl"],
-                   help="sim: a simulated arm; ssc32: servos on an SSC-32; grbl: steppers on GRBL")
+    p.add_argument(
+        "kind",
+        choices=["sim", "ssc32", "grbl"],
+        help="sim: a simulated arm; ssc32: servos on an SSC-32; grbl: steppers on GRBL",
+    )
     p.add_argument("robot")
     network_args(p)
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
     p.add_argument("--lag", type=float, default=0.0, help="first-order servo lag time constant [s] (sim)")
     p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl)")
-    p.add_argument("--baud", type=int, default=None, help="the controller's baud rate (default: the arm's "
-                   "[controller] baud)")
-    p.add_argument("--state-dir", help="where the adapter keeps the arm's last pose (ssc32; default "
-                   "$ARMD_STATE_DIR, else ~/.local/state/armd)")
+    p.add_argument(
+        "--baud", type=int, default=None, help="the controller's baud rate (default: the arm's [controller] baud)"
+    )
+    p.add_argument(
+        "--state-dir",
+        help="where the adapter keeps the arm's last pose (ssc32; default $ARMD_STATE_DIR, else ~/.local/state/armd)",
+    )
     known = p.add_mutually_exclusive_group()
-    known.add_argument("--assume-rest", action="store_true",
-                       help="grbl: the arm is at its rest pose now (I checked): its position is known")
+    known.add_argument(
+        "--assume-rest",
+        action="store_true",
+        help="grbl: the arm is at its rest pose now (I checked): its position is known",
+    )
     known.add_argument("--home", action="store_true", help="grbl: run the homing cycle ($H) at start")
     p.set_defaults(func=cmd_adapter, log_default="info")
 

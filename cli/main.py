@@ -19,12 +19,15 @@ EXTRAS = {"serial": "hardware", "matplotlib": "view", "meshcat": "view"}  # a mo
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
-    parser.add_argument("--log-level", choices=LOG_LEVELS, default=None,
-                        help="what armd logs to stderr (default: info for the daemons, the viewer and the "
-                        "router; warning for the rest)")
+    parser.add_argument(
+        "--log-level",
+        choices=LOG_LEVELS,
+        default=None,
+        help="what armd logs to stderr (default: info for the daemons, the viewer and the "
+        "router; warning for the rest)",
+    )
     log_args = argparse.ArgumentParser(add_help=False)  # --log-level after the command, too
-    log_args.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
-                          help="what armd logs to stderr")
+    log_args.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS, help="what armd logs to stderr")
     sub = parser.add_subparsers(dest="command", required=True)
     offline.register(sub, log_args)
     daemons.register(sub, log_args)

@@ -27,8 +27,10 @@ def cmd_catalogue(args: argparse.Namespace) -> int:
         print(f"  {'joint':<12} {'lower':>7} {'upper':>7}  deg   {'vmax':>6} {'amax':>6} {'jmax':>6}  (rad/s^k)")
         lim = arm.limits
         for i, j in enumerate(arm.joint_names):
-            print(f"  {j:<12} {_deg(lim.lower[i])} {_deg(lim.upper[i])}      "
-                  f"{lim.velocity[i]:6.2f} {lim.acceleration[i]:6.1f} {lim.jerk[i]:6.1f}")
+            print(
+                f"  {j:<12} {_deg(lim.lower[i])} {_deg(lim.upper[i])}      "
+                f"{lim.velocity[i]:6.2f} {lim.acceleration[i]:6.1f} {lim.jerk[i]:6.1f}"
+            )
         for c in lim.coupled:
             terms = " + ".join(f"{k:g}*{arm.joint_names[i]}" for i, k in enumerate(c.coefficients) if k)
             print(f"  coupled {c.name}: {c.lower:g} <= {terms} <= {c.upper:g} rad")
@@ -48,8 +50,10 @@ def cmd_plot(args: argparse.Namespace) -> int:
     start = numbers(args.start, "start") if args.start else arm.neutral
     traj = planning.plan(arm, start, goal(args), path=args.path, speed=args.speed, rate_hz=args.rate)
     out = plot_trajectory(traj, arm, args.out)
-    print(f"{out}: {traj.path} trajectory of {arm.name}, {traj.duration:.3f} s, {len(traj.times)} samples "
-          f"at {traj.rate_hz:g} Hz")
+    print(
+        f"{out}: {traj.path} trajectory of {arm.name}, {traj.duration:.3f} s, {len(traj.times)} samples "
+        f"at {traj.rate_hz:g} Hz"
+    )
     return 0
 
 
@@ -57,12 +61,15 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     from armd.tools import workspace
 
     arm = robot_named(args.robot, args.robots_dir)
-    ws = workspace.compute(arm, step=args.step, heights=args.heights,
-                           progress=workspace.ProgressBar(f"workspace of {arm.name}"))
+    ws = workspace.compute(
+        arm, step=args.step, heights=args.heights, progress=workspace.ProgressBar(f"workspace of {arm.name}")
+    )
     workspace.plot(ws, arm, args.out)
     cells = ws.side.any_pitch.size + ws.top.any_pitch.size * len(ws.heights)
-    line = (f"{args.out}: {arm.name} workspace, {ws.step * 1000:g} mm cells; side view: A "
-            f"{ws.side.any_pitch.sum() * ws.side.cell_area * 1e4:.0f} cm²")
+    line = (
+        f"{args.out}: {arm.name} workspace, {ws.step * 1000:g} mm cells; side view: A "
+        f"{ws.side.any_pitch.sum() * ws.side.cell_area * 1e4:.0f} cm²"
+    )
     if ws.side.parallel is not None:
         line += f", B {ws.side.parallel.sum() * ws.side.cell_area * 1e4:.0f} cm²"
     print(f"{line}; {cells:,} cells per approach by batch IK in {ws.seconds:.2f} s")
@@ -75,8 +82,9 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print JSON instead of tables")
     p.set_defaults(func=cmd_catalogue)
 
-    p = sub.add_parser("plot", parents=[log_args],
-                       help="plan a trajectory offline and write a PNG of it (limits drawn)")
+    p = sub.add_parser(
+        "plot", parents=[log_args], help="plan a trajectory offline and write a PNG of it (limits drawn)"
+    )
     p.add_argument("robot")
     p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector [rad] (default: neutral)")
     p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
@@ -89,8 +97,9 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.set_defaults(func=cmd_plot)
 
-    p = sub.add_parser("workspace", parents=[log_args],
-                       help="draw an arm's reachable space (side and top views) to a PNG")
+    p = sub.add_parser(
+        "workspace", parents=[log_args], help="draw an arm's reachable space (side and top views) to a PNG"
+    )
     p.add_argument("robot")
     p.add_argument("--out", default="workspace.png", help="PNG file to write")
     p.add_argument("--step", type=float, default=0.004, help="cell size [m] (default 0.004)")

@@ -13,8 +13,13 @@ from .common import robot_named, wait_for_signal
 def cmd_demo(args: argparse.Namespace) -> int:
     from armd.tools import demo
 
-    demo.run(args.robots, Path(args.out), time_scale=args.time_scale, workspace_step=args.workspace_step,
-             say=lambda line: print(line, flush=True))
+    demo.run(
+        args.robots,
+        Path(args.out),
+        time_scale=args.time_scale,
+        workspace_step=args.workspace_step,
+        say=lambda line: print(line, flush=True),
+    )
     return 0
 
 
@@ -36,8 +41,11 @@ def cmd_view(args: argparse.Namespace) -> int:
             raise ViewerError(f"cannot reach a Zenoh network at {where}: is `armd serve` running? ({e})") from None
         try:
             with ZenohFeed(view, session, prefix=args.prefix) as feed:
-                print(f"armd view of {arm.name}: open {view.url}\n  showing {feed.base}/state and "
-                      f"{feed.base}/trajectory from {where}; Ctrl-C to stop", flush=True)
+                print(
+                    f"armd view of {arm.name}: open {view.url}\n  showing {feed.base}/state and "
+                    f"{feed.base}/trajectory from {where}; Ctrl-C to stop",
+                    flush=True,
+                )
                 wait_for_signal()
         finally:
             session.close()
@@ -47,8 +55,9 @@ def cmd_view(args: argparse.Namespace) -> int:
 def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     from armd.tools.view import DEFAULT_PORT, HOST
 
-    p = sub.add_parser("demo", parents=[log_args],
-                       help="run the service with simulated arms and a scripted session on every arm")
+    p = sub.add_parser(
+        "demo", parents=[log_args], help="run the service with simulated arms and a scripted session on every arm"
+    )
     p.add_argument("robots", nargs="*", help="arms to show (default: the whole catalogue)")
     p.add_argument("--out", default="armd-demo", help="folder for the plots and demo.json (default armd-demo)")
     p.add_argument("--time-scale", type=float, default=2.0, help="simulated time per real second (default 2)")
@@ -61,7 +70,11 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
     p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
     p.add_argument("--robots-dir", help="a folder of your own arms")
-    p.add_argument("--port", type=int, default=None,
-                   help=f"the viewer's HTTP port on {HOST} (default {DEFAULT_PORT}, or the next free one)")
+    p.add_argument(
+        "--port",
+        type=int,
+        default=None,
+        help=f"the viewer's HTTP port on {HOST} (default {DEFAULT_PORT}, or the next free one)",
+    )
     p.add_argument("--rate", type=float, default=30.0, help="most display updates per second (default 30)")
     p.set_defaults(func=cmd_view, log_default="info")

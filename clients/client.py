@@ -27,10 +27,6 @@ JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
 
 
-
-
-
-
 @dataclass(frozen=True)
 class IKReply:
     status: str
@@ -74,9 +70,18 @@ class TrajectoryReply:
     @classmethod
     def of(cls, r: dict[str, Any]) -> TrajectoryReply:
         """From the JSON of a ``plan`` reply."""
-        return cls(r["path"], r["duration"], r["rate_hz"], r["joint_names"], np.array(r["times"]),
-                   np.array(r["position"]), np.array(r["velocity"]), np.array(r["acceleration"]),
-                   np.array(r["commands"], dtype=np.int64), r)
+        return cls(
+            r["path"],
+            r["duration"],
+            r["rate_hz"],
+            r["joint_names"],
+            np.array(r["times"]),
+            np.array(r["position"]),
+            np.array(r["velocity"]),
+            np.array(r["acceleration"]),
+            np.array(r["commands"], dtype=np.int64),
+            r,
+        )
 
 
 @dataclass(frozen=True)
@@ -102,8 +107,15 @@ class ArmClient:
             (answered ``deadline``, nothing done); the service's own limit applies if shorter.
     """
 
-    def __init__(self, connect: str | Sequence[str] | None = None, *, config: str | None = None,
-                 prefix: str = "armd", timeout: float = 5.0, deadline: float | None = None) -> None:
+    def __init__(
+        self,
+        connect: str | Sequence[str] | None = None,
+        *,
+        config: str | None = None,
+        prefix: str = "armd",
+        timeout: float = 5.0,
+        deadline: float | None = None,
+    ) -> None:
         endpoints = [connect] if isinstance(connect, str) else (list(connect) if connect else None)
         try:
             self.session = zenoh.open(client_config(endpoints, config))
@@ -126,8 +138,13 @@ class ArmClient:
 
     # -- the verbs ---------------------------------------------------------------------------
 
-    def call(self, key: str, request: dict[str, Any] | None = None, timeout: float | None = None,
-             deadline: float | None = None) -> dict[str, Any]:
+    def call(
+        self,
+        key: str,
+        request: dict[str, Any] | None = None,
+        timeout: float | None = None,
+        deadline: float | None = None,
+    ) -> dict[str, Any]:
         """One request to ``<prefix>/<key>``: the reply object, or :class:`ServiceError` /
         :class:`NoReply`. ``deadline`` [s]: for this request, instead of the client's."""
         asked = self.deadline if deadline is None else deadline
@@ -151,9 +168,11 @@ class ArmClient:
                     break
                 raise from_reply(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
         if time.monotonic() - started < wait / 2:  # ended at once: nothing on the network serves the key
-            raise NoReply(f"no armd service answered {self.prefix}/{key}: nothing on the network serves it "
-                          "(no service for this robot, or an access-control list that refuses it to this user "
-                          "or hides the service's queryable: docs/security.md)")
+            raise NoReply(
+                f"no armd service answered {self.prefix}/{key}: nothing on the network serves it "
+                "(no service for this robot, or an access-control list that refuses it to this user "
+                "or hides the service's queryable: docs/security.md)"
+            )
         raise NoReply(f"no armd service answered {self.prefix}/{key} within {wait} s")
 
     def _querier(self, key: str, wait: float) -> zenoh.Querier:
@@ -163,8 +182,11 @@ class ArmClient:
         come from callers): past ``MAX_QUERIERS`` keys, one is declared per call as before."""
         querier = self._queriers.get((key, wait))
         if querier is None:
-            querier = self.session.declare_querier(f"{self.prefix}/{key}", timeout=wait,  # BLOCK: DROP loses big ones
-                                                   congestion_control=zenoh.CongestionControl.BLOCK)
+            querier = self.session.declare_querier(
+                f"{self.prefix}/{key}",
+                timeout=wait,  # BLOCK: DROP loses big ones
+                congestion_control=zenoh.CongestionControl.BLOCK,
+            )
             if len(self._queriers) < MAX_QUERIERS:
                 querier = self._queriers.setdefault((key, wait), querier)  # (two threads at once: one kept)
         return querier
@@ -183,8 +205,16 @@ class ArmClient:
         r = self.call(f"{robot}/fk", {"q": list(q)})
         return FKReply(np.array(r["q"]), np.array(r["position"]), r["pitch"], r["within_limits"], r)
 
-    def ik(self, robot: str, target: object, *, approach: object = None, seed: Sequence[float] | None = None,
-           tolerance: float | None = None, quantise: bool = False) -> IKReply:
+    def ik(
+        self,
+        robot: str,
+        target: object,
+        *,
+        approach: object = None,
+        seed: Sequence[float] | None = None,
+        tolerance: float | None = None,
+        quantise: bool = False,
+    ) -> IKReply:
         req: dict[str, Any] = {"target": _jsonable(target)}
         if approach is not None:
             req["approach"] = approach
@@ -195,8 +225,18 @@ class ArmClient:
         if quantise:
             req["quantise"] = True
         r = self.call(f"{robot}/ik", req)
-        return IKReply(r["status"], np.array(r["q"]), r["position_error"], np.array(r["reached"]), r["pitch"],
-                       r["pitch_error"], r["branch"], r["branches"], r["reason"], r)
+        return IKReply(
+            r["status"],
+            np.array(r["q"]),
+            r["position_error"],
+            np.array(r["reached"]),
+            r["pitch"],
+            r["pitch_error"],
+            r["branch"],
+            r["branches"],
+            r["reason"],
+            r,
+        )
 
     def ik_batch(self, robot: str, targets: object, *, approach: object = None, seeds: object = None) -> dict[str, Any]:
         req: dict[str, Any] = {"targets": _jsonable(targets)}
@@ -206,22 +246,41 @@ class ArmClient:
             req["seeds"] = _jsonable(seeds)
         return self.call(f"{robot}/ik", req)
 
-    def plan(self, robot: str, goal: object, *, start: object = None, path: str = "joint", speed: float = 1.0,
-             rate_hz: float | None = None, via: Sequence[object] = ()) -> TrajectoryReply:
+    def plan(
+        self,
+        robot: str,
+        goal: object,
+        *,
+        start: object = None,
+        path: str = "joint",
+        speed: float = 1.0,
+        rate_hz: float | None = None,
+        via: Sequence[object] = (),
+    ) -> TrajectoryReply:
         req = _motion(goal, path, speed, rate_hz, via)
         if start is not None:
             req["start"] = _jsonable(start)
         r = self.call(f"{robot}/plan", req)
         return TrajectoryReply.of(r)
 
-    def move(self, robot: str, goal: object, *, path: str = "joint", speed: float = 1.0,
-             rate_hz: float | None = None, via: Sequence[object] = (), wait: bool = False,
-             wait_timeout: float | None = None) -> MoveReply:
+    def move(
+        self,
+        robot: str,
+        goal: object,
+        *,
+        path: str = "joint",
+        speed: float = 1.0,
+        rate_hz: float | None = None,
+        via: Sequence[object] = (),
+        wait: bool = False,
+        wait_timeout: float | None = None,
+    ) -> MoveReply:
         """Plan from where the arm is and send it to the adapters. ``wait``: return when the
         arm has arrived (the service's state of it says at rest at the goal)."""
         r = self.call(f"{robot}/move", _motion(goal, path, speed, rate_hz, via))
-        reply = MoveReply(r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"],
-                          str(r.get("adapter", "")), r)
+        reply = MoveReply(
+            r["id"], r["path"], r["duration"], np.array(r["goal"]), r["start_source"], str(r.get("adapter", "")), r
+        )
         if wait:
             self.wait_until_still(robot, reply.goal, timeout=wait_timeout or reply.duration + 5.0)
         return reply
@@ -234,20 +293,33 @@ class ArmClient:
         service needed). Each brakes from its own state within every limit. ``wait`` [s]: how
         long to collect the adapters' ``accepted`` events for it (returned; [] if none came)."""
         ident = uuid.uuid4().hex
-        return self._tell(robot, "estop", {"id": ident, "by": "client"}, wait,
-                          lambda e: e.get("event") == "accepted" and e.get("id") == ident, every=True)
+        return self._tell(
+            robot,
+            "estop",
+            {"id": ident, "by": "client"},
+            wait,
+            lambda e: e.get("event") == "accepted" and e.get("id") == ident,
+            every=True,
+        )
 
     def unlock(self, robot: str, how: str, *, wait: float = 60.0) -> dict[str, Any] | None:
         """Tell the adapter that lost the arm's position where it is: ``how`` ``"home"`` (run the
         homing cycle) or ``"assume_rest"`` (the arm is at its rest pose). Returns the adapter's
         ``unlocked`` or ``rejected`` event, or None if none came within ``wait`` [s]."""
-        answers = self._tell(robot, "unlock", {"how": how}, wait,
-                             lambda e: e.get("event") == "unlocked"
-                             or (e.get("event") == "rejected" and "unlock" in str(e.get("reason", ""))))
+        answers = self._tell(
+            robot,
+            "unlock",
+            {"how": how},
+            wait,
+            lambda e: (
+                e.get("event") == "unlocked" or (e.get("event") == "rejected" and "unlock" in str(e.get("reason", "")))
+            ),
+        )
         return answers[0] if answers else None
 
-    def _tell(self, robot: str, key: str, message: dict[str, Any], wait: float, match: Any,
-              every: bool = False) -> list[dict[str, Any]]:
+    def _tell(
+        self, robot: str, key: str, message: dict[str, Any], wait: float, match: Any, every: bool = False
+    ) -> list[dict[str, Any]]:
         """Put ``message`` on ``<prefix>/<robot>/<key>``, and collect the arm's events that
         ``match`` for ``wait`` seconds (the first one only unless ``every``)."""
         import threading
@@ -266,8 +338,13 @@ class ArmClient:
 
         sub = self.session.declare_subscriber(f"{self.prefix}/{robot}/events", on_event) if wait > 0 else None
         try:
-            self.session.put(f"{self.prefix}/{robot}/{key}", encode(message), encoding=JSON,
-                             congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME)
+            self.session.put(
+                f"{self.prefix}/{robot}/{key}",
+                encode(message),
+                encoding=JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK,
+                priority=zenoh.Priority.REAL_TIME,
+            )
             if sub is not None:
                 if every:
                     time.sleep(wait)
@@ -282,8 +359,9 @@ class ArmClient:
         """Open (1) or close (0) the gripper, or anything between."""
         return self.call(f"{robot}/gripper", {"opening": opening})
 
-    def wait_until_still(self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0,
-                         tolerance: float = 2e-3) -> dict[str, Any]:
+    def wait_until_still(
+        self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0, tolerance: float = 2e-3
+    ) -> dict[str, Any]:
         """Poll the arm's state until it is at rest (at ``goal`` within ``tolerance`` [rad])."""
         import time
 

@@ -27,32 +27,52 @@ def _first(bad: NDArray[np.bool_]) -> tuple[int, int]:
     return int(k), int(j)
 
 
-def check_samples(robot: Robot, times: FloatArray, position: FloatArray, velocity: FloatArray,
-                  acceleration: FloatArray, jerk: FloatArray) -> None:
+def check_samples(
+    robot: Robot,
+    times: FloatArray,
+    position: FloatArray,
+    velocity: FloatArray,
+    acceleration: FloatArray,
+    jerk: FloatArray,
+) -> None:
     """Raise the first limit any sample breaks (rows are samples at ``times`` [s])."""
     lim = robot.limits
     names = robot.joint_names
-    for values, kind in ((position, "position"), (velocity, "velocity"), (acceleration, "acceleration"),
-                         (jerk, "jerk")):
+    for values, kind in (
+        (position, "position"),
+        (velocity, "velocity"),
+        (acceleration, "acceleration"),
+        (jerk, "jerk"),
+    ):
         finite = np.isfinite(values)
         if not finite.all():  # NaN compares false with every limit: catch it before anything else
             k, j = _first(~finite)
-            raise LimitError(f"joint {names[j]!r} {kind} is not a number at t = {times[k]:.4f} s",
-                             name=names[j], value=float(values[k, j]), bounds=(-np.inf, np.inf), kind=kind,
-                             time=float(times[k]))
+            raise LimitError(
+                f"joint {names[j]!r} {kind} is not a number at t = {times[k]:.4f} s",
+                name=names[j],
+                value=float(values[k, j]),
+                bounds=(-np.inf, np.inf),
+                kind=kind,
+                time=float(times[k]),
+            )
     outside = lim.first_outside(position, tol=POSITION_TOL)
     if outside is not None:
         raise _at(outside[1], times[outside[0]])
-    for values, limit, kind, unit in ((velocity, lim.velocity, "velocity", "rad/s"),
-                                      (acceleration, lim.acceleration, "acceleration", "rad/s^2"),
-                                      (jerk, lim.jerk, "jerk", "rad/s^3")):
+    for values, limit, kind, unit in (
+        (velocity, lim.velocity, "velocity", "rad/s"),
+        (acceleration, lim.acceleration, "acceleration", "rad/s^2"),
+        (jerk, lim.jerk, "jerk", "rad/s^3"),
+    ):
         over = np.abs(values) > limit * (1 + RATE_TOL) + 1e-12
         if over.any():
             k, j = _first(over)
             raise LimitError(
                 f"joint {names[j]!r} {kind} {values[k, j]:.6g} {unit} at t = {times[k]:.4f} s exceeds its "
                 f"limit {limit[j]:.6g} {unit}",
-                name=names[j], value=float(values[k, j]), bounds=(-float(limit[j]), float(limit[j])), kind=kind,
+                name=names[j],
+                value=float(values[k, j]),
+                bounds=(-float(limit[j]), float(limit[j])),
+                kind=kind,
                 time=float(times[k]),
             )
 

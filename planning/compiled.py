@@ -30,8 +30,17 @@ MARGIN = 1e-12  # [rad, rad/s ...]: all_clear is stricter than the checks by thi
 
 
 @entry("void(f8[:, :, :, :], f8[:], f8[:], f8[:], f8, f8[:, :], f8[:, :], f8[:, :], f8[:, :])")
-def evaluate(tables: FloatArray, seg_starts: FloatArray, seg_durations: FloatArray, times: FloatArray,
-             dt: float, P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray) -> None:
+def evaluate(
+    tables: FloatArray,
+    seg_starts: FloatArray,
+    seg_durations: FloatArray,
+    times: FloatArray,
+    dt: float,
+    P: FloatArray,
+    V: FloatArray,
+    A: FloatArray,
+    Jk: FloatArray,
+) -> None:
     """Fill P, V, A (samples x dofs) at ``times`` (clamped to the path), and Jk with
     (A[k+1] - A[k]) / dt (0 on the last sample).
 
@@ -78,11 +87,20 @@ def evaluate(tables: FloatArray, seg_starts: FloatArray, seg_durations: FloatArr
             Jk[i, d] = (A[i + 1, d] - A[i, d]) / dt if i + 1 < n else 0.0
 
 
-@entry("b1(f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], "
-       "f8[:, :], f8[:], i8[:, :])")
-def all_clear(P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray, coupled: FloatArray,
-              angles: FloatArray, joints: FloatArray, couplings: FloatArray, actuators: FloatArray,
-              tolerances: FloatArray, commands: IntArray) -> bool:
+@entry("b1(f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:, :], f8[:], i8[:, :])")
+def all_clear(
+    P: FloatArray,
+    V: FloatArray,
+    A: FloatArray,
+    Jk: FloatArray,
+    coupled: FloatArray,
+    angles: FloatArray,
+    joints: FloatArray,
+    couplings: FloatArray,
+    actuators: FloatArray,
+    tolerances: FloatArray,
+    commands: IntArray,
+) -> bool:
     """True when every sample is clearly inside every limit (by MARGIN more than the checks
     ask); ``commands`` gets rint(angle * gain + bias).
 
@@ -101,8 +119,11 @@ def all_clear(P: FloatArray, V: FloatArray, A: FloatArray, Jk: FloatArray, coupl
                 return False
             if p < joints[0, d] - position_tol + MARGIN or p > joints[1, d] + position_tol - MARGIN:
                 return False
-            if abs(v) > joints[2, d] * (1 + rate_tol) - MARGIN or abs(a) > joints[3, d] * (1 + rate_tol) - MARGIN \
-                    or abs(jk) > joints[4, d] * (1 + rate_tol) - MARGIN:
+            if (
+                abs(v) > joints[2, d] * (1 + rate_tol) - MARGIN
+                or abs(a) > joints[3, d] * (1 + rate_tol) - MARGIN
+                or abs(jk) > joints[4, d] * (1 + rate_tol) - MARGIN
+            ):
                 return False
         for c in range(coupled.shape[1]):
             x = coupled[i, c]

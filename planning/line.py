@@ -87,7 +87,10 @@ class LinePath:
         if r.status != "ok":
             raise PlanRejected(
                 f"the line leaves the reachable space {s:.4f} m from the start at {self.point(s).round(4).tolist()}: "
-                f"{r.reason}", s=s, point=self.point(s).tolist())
+                f"{r.reason}",
+                s=s,
+                point=self.point(s).tolist(),
+            )
         return r.q
 
 
@@ -118,7 +121,9 @@ def _grid(line: LinePath) -> tuple[FloatArray, FloatArray]:
         raise PlanRejected(
             f"the line needs a branch flip {ss[k]:.4f} m from the start: joint "
             f"{line.robot.joint_names[j]!r} would jump {size:.3f} rad (elbow or yaw turning over)",
-            s=float(ss[k]), joint=line.robot.joint_names[j])
+            s=float(ss[k]),
+            joint=line.robot.joint_names[j],
+        )
     return ss, qs
 
 
@@ -157,9 +162,17 @@ def _derivatives(P: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
     return V, A
 
 
-def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: float | None, speed: float,
-                 rate_hz: float, *, max_samples: int | None = None, check: Callable[[], None] | None = None,
-                 ) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
+def line_samples(
+    robot: Robot,
+    start: JointState,
+    goal: FloatArray,
+    goal_pitch: float | None,
+    speed: float,
+    rate_hz: float,
+    *,
+    max_samples: int | None = None,
+    check: Callable[[], None] | None = None,
+) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
     """(duration, times, position, velocity, acceleration, evaluator) of the line.
 
     ``max_samples``: refuse (:class:`TrajectoryTooLong`) a timing with more samples, before
@@ -189,8 +202,12 @@ def line_samples(robot: Robot, start: JointState, goal: FloatArray, goal_pitch: 
         J = forward_jerk(A, dt)
         # the forward differences too: a controller that interpolates linearly between samples
         # (the SSC-32) moves at exactly those, and adapters check them (by motion, not as declared)
-        if (np.all(np.abs(V) <= lim.velocity) and np.all(np.abs(A) <= lim.acceleration)
-                and np.all(np.abs(J) <= lim.jerk) and np.all(np.abs(np.diff(P, axis=0)) <= lim.velocity * dt)):
+        if (
+            np.all(np.abs(V) <= lim.velocity)
+            and np.all(np.abs(A) <= lim.acceleration)
+            and np.all(np.abs(J) <= lim.jerk)
+            and np.all(np.abs(np.diff(P, axis=0)) <= lim.velocity * dt)
+        ):
             break
         v, a, j = v * SLOWDOWN, a * SLOWDOWN**2, j * SLOWDOWN**3
     else:

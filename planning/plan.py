@@ -31,8 +31,12 @@ def _rate(robot: Robot, rate_hz: object) -> float:
 
 
 def _speed(speed: object) -> float:
-    if isinstance(speed, bool) or not isinstance(speed, (int, float)) or not math.isfinite(speed) \
-            or not MIN_SPEED <= speed <= 1:
+    if (
+        isinstance(speed, bool)
+        or not isinstance(speed, (int, float))
+        or not math.isfinite(speed)
+        or not MIN_SPEED <= speed <= 1
+    ):
         raise BadRequest(f"speed must be a number in [{MIN_SPEED:g}, 1], got {speed!r}", field="speed")
     return float(speed)
 
@@ -83,8 +87,9 @@ def plan(
         if via:
             raise BadRequest("a line goes straight to its goal: via points are for joint paths", field="via")
         point, pitch = goal_point(robot, goal, s.position)
-        duration, times, P, V, A, evaluate = line_samples(robot, s, point, pitch, spd, rate,
-                                                          max_samples=max_samples, check=check)
+        duration, times, P, V, A, evaluate = line_samples(
+            robot, s, point, pitch, spd, rate, max_samples=max_samples, check=check
+        )
         return build(robot, "line", rate, duration, times, P, V, A, evaluate)
     if isinstance(via, (str, bytes)) or not isinstance(via, Sequence):
         raise BadRequest("via must be a list of goals", field="via")

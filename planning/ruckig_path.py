@@ -85,8 +85,9 @@ class RuckigPath:
         p, v, a = self.segments[k].at_time(t - self.starts[k])
         return np.array(p), np.array(v), np.array(a)
 
-    def sample(self, times: FloatArray,
-               dt: float | None = None) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    def sample(
+        self, times: FloatArray, dt: float | None = None
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         """Position, velocity, acceleration at every time (sorted) [s], and the jerk as the
         forward difference of the acceleration over ``dt`` (default: the times' spacing):
         each segment's jerk phases integrated in closed form (what ``at_time`` computes one
@@ -144,8 +145,15 @@ def _phases(prof: ruckig.Profile) -> list[tuple[float, float, float, float, floa
     return rows
 
 
-def _segment(otg: ruckig.Ruckig, start: JointState, goal: FloatArray, goal_velocity: FloatArray,
-             limits: Limits, interface_velocity: bool = False, synchronise: bool = True) -> ruckig.Trajectory:
+def _segment(
+    otg: ruckig.Ruckig,
+    start: JointState,
+    goal: FloatArray,
+    goal_velocity: FloatArray,
+    limits: Limits,
+    interface_velocity: bool = False,
+    synchronise: bool = True,
+) -> ruckig.Trajectory:
     n = len(goal)
     inp = ruckig.InputParameter(n)
     inp.current_position = start.position.tolist()
@@ -181,8 +189,9 @@ def calculate(otg: ruckig.Ruckig, inp: ruckig.InputParameter, traj: ruckig.Traje
         raise PlannerError(f"Ruckig rejected the segment: {e}") from None
     except ValueError as e:  # a result code the binding has no name for: "-101 is not a valid Result"
         if str(e).startswith("-101 "):  # ErrorTrajectoryDuration: longer than Ruckig's numerical range
-            raise BadRequest("the motion would last longer than Ruckig can time (about 7,600 s): raise speed",
-                             field="speed") from None
+            raise BadRequest(
+                "the motion would last longer than Ruckig can time (about 7,600 s): raise speed", field="speed"
+            ) from None
         raise PlannerError(f"Ruckig could not compute the segment: {e}") from None
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlannerError(f"Ruckig could not compute the segment: {result}")
@@ -231,8 +240,7 @@ def _otg(nq: int, dt: float) -> ruckig.Ruckig:
     return otg
 
 
-def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float,
-               dt: float) -> RuckigPath:
+def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float, dt: float) -> RuckigPath:
     """Through every goal in order, ending at rest on the last; waypoints passed without
     stopping where that is possible."""
     limits = Limits.of(robot, speed)
@@ -242,8 +250,9 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
     prev = start.position
     if start.moving:  # from a moving state: straight on if that stays inside the limits
         first_v = np.zeros(robot.nq) if len(goals) == 1 else _pass_velocity(prev, goals[0], goals[1], limits)
-        faster = bool(np.any(np.abs(start.velocity) > limits.velocity)
-                      or np.any(np.abs(start.acceleration) > limits.acceleration))
+        faster = bool(
+            np.any(np.abs(start.velocity) > limits.velocity) or np.any(np.abs(start.acceleration) > limits.acceleration)
+        )
         try:
             direct: ruckig.Trajectory | None = _segment(otg, start, goals[0], first_v, limits)
         except (PlannerError, BadRequest):

@@ -31,8 +31,11 @@ class JointState:
         return max(map(abs, self.velocity.tolist() + self.acceleration.tolist()), default=0.0) > 1e-9
 
     def to_dict(self) -> dict[str, Any]:
-        return {"position": self.position.tolist(), "velocity": self.velocity.tolist(),
-                "acceleration": self.acceleration.tolist()}
+        return {
+            "position": self.position.tolist(),
+            "velocity": self.velocity.tolist(),
+            "acceleration": self.acceleration.tolist(),
+        }
 
 
 def joint_state(robot: Robot, start: object, field: str = "start") -> JointState:
@@ -59,15 +62,20 @@ def joint_state(robot: Robot, start: object, field: str = "start") -> JointState
     if not lim.contains(p, tol=1e-9):
         bad = lim.violations(p, tol=1e-9)
         raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=f"{field}.position")
-    for given, values, limit, what, unit in ((vel, v, lim.velocity, "velocity", "rad/s"),
-                                             (acc, a, lim.acceleration, "acceleration", "rad/s^2")):
+    for given, values, limit, what, unit in (
+        (vel, v, lim.velocity, "velocity", "rad/s"),
+        (acc, a, lim.acceleration, "acceleration", "rad/s^2"),
+    ):
         if given is None:  # zeros: within any limit
             continue
         over = np.abs(values) > limit * (1 + 1e-9)
         if over.any():
             i = int(np.argmax(over))
-            raise BadRequest(f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
-                             f"limit {limit[i]:.4g}", field=f"{field}.{what}")
+            raise BadRequest(
+                f"{field}: joint {robot.joint_names[i]!r} {what} {values[i]:.4g} {unit} is over its "
+                f"limit {limit[i]:.4g}",
+                field=f"{field}.{what}",
+            )
     return JointState(lim.clip(p), v, a)
 
 

@@ -119,11 +119,17 @@ class _Gate:
         co = lim.coupled
         amap = robot.actuators
         lo, hi, gain, bias, cmd_lo, cmd_hi, angle_tol = amap.ranges
-        gate = cls(np.array([c.coefficients for c in co]).reshape(len(co), robot.nq), amap.M,
-                   amap.b, np.array([lim.lower, lim.upper, lim.velocity, lim.acceleration, lim.jerk]),
-                   np.array([[c.lower for c in co], [c.upper for c in co]], dtype=float).reshape(2, len(co)),
-                   np.array([lo, hi, gain, bias, cmd_lo, cmd_hi]), np.array([POSITION_TOL, RATE_TOL, angle_tol]),
-                   tuple(a.name for a in amap.actuators), tuple(a.unit for a in amap.actuators))
+        gate = cls(
+            np.array([c.coefficients for c in co]).reshape(len(co), robot.nq),
+            amap.M,
+            amap.b,
+            np.array([lim.lower, lim.upper, lim.velocity, lim.acceleration, lim.jerk]),
+            np.array([[c.lower for c in co], [c.upper for c in co]], dtype=float).reshape(2, len(co)),
+            np.array([lo, hi, gain, bias, cmd_lo, cmd_hi]),
+            np.array([POSITION_TOL, RATE_TOL, angle_tol]),
+            tuple(a.name for a in amap.actuators),
+            tuple(a.unit for a in amap.actuators),
+        )
         _gates[id(robot)] = (robot, gate)  # a dict write is atomic: threads at worst build it twice
         return gate
 
@@ -131,9 +137,18 @@ class _Gate:
 _gates: dict[int, tuple[Robot, _Gate]] = {}
 
 
-def build(robot: Robot, path: str, rate_hz: float, duration: float, times: FloatArray, position: FloatArray,
-          velocity: FloatArray, acceleration: FloatArray, evaluator: Evaluator,
-          jerk: FloatArray | None = None) -> Trajectory:
+def build(
+    robot: Robot,
+    path: str,
+    rate_hz: float,
+    duration: float,
+    times: FloatArray,
+    position: FloatArray,
+    velocity: FloatArray,
+    acceleration: FloatArray,
+    evaluator: Evaluator,
+    jerk: FloatArray | None = None,
+) -> Trajectory:
     """Check every sample against every limit, map to actuator commands, and wrap it up.
 
     ``jerk``: the forward differences of ``acceleration`` when the caller has them already.
@@ -148,13 +163,34 @@ def build(robot: Robot, path: str, rate_hz: float, duration: float, times: Float
     # noise within POSITION_TOL of a box limit is put exactly on it (anything more raises)
     clipped = lim.clip(position)
     commands = np.empty((len(times), len(gate.b)), dtype=np.int64)
-    if not all_clear(position, velocity, acceleration, jerk, position @ gate.C.T, clipped @ gate.M.T + gate.b,
-                     gate.joints, gate.couplings, gate.actuators, gate.tolerances, commands):
+    if not all_clear(
+        position,
+        velocity,
+        acceleration,
+        jerk,
+        position @ gate.C.T,
+        clipped @ gate.M.T + gate.b,
+        gate.joints,
+        gate.couplings,
+        gate.actuators,
+        gate.tolerances,
+        commands,
+    ):
         check_samples(robot, times, position, velocity, acceleration, jerk)
         commands = actuator_commands(robot, times, clipped)
     return Trajectory(
-        robot=robot.name, path=path, joint_names=robot.joint_names,
-        actuator_names=gate.names, actuator_units=gate.units,
-        rate_hz=rate_hz, duration=duration, times=times, position=clipped, velocity=velocity,
-        acceleration=acceleration, jerk=jerk, commands=commands, evaluator=evaluator,
+        robot=robot.name,
+        path=path,
+        joint_names=robot.joint_names,
+        actuator_names=gate.names,
+        actuator_units=gate.units,
+        rate_hz=rate_hz,
+        duration=duration,
+        times=times,
+        position=clipped,
+        velocity=velocity,
+        acceleration=acceleration,
+        jerk=jerk,
+        commands=commands,
+        evaluator=evaluator,
     )

@@ -125,8 +125,9 @@ class Gripper:
 
     def pulse(self, opening: float) -> int:
         """Pulse [us] for ``opening`` in [0, 1] (0 closed, 1 open)."""
-        if isinstance(opening, bool) or not (isinstance(opening, (int, float)) and math.isfinite(opening)
-                                             and 0.0 <= opening <= 1.0):  # (True is an int to Python, not to JSON)
+        if isinstance(opening, bool) or not (
+            isinstance(opening, (int, float)) and math.isfinite(opening) and 0.0 <= opening <= 1.0
+        ):  # (True is an int to Python, not to JSON)
             raise BadRequest(f"gripper opening must be a number in [0, 1], got {opening!r}", field="opening")
         return round(self.closed + opening * (self.open - self.closed))
 

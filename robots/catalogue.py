@@ -214,8 +214,7 @@ class _Builder:
 
         n = len(joint_names)
         index = {j: i for i, j in enumerate(joint_names)}
-        limits = self._limits(model, joint_names, index, top.table("joints"), top.tables("coupled_limits"),
-                              urdf_name)
+        limits = self._limits(model, joint_names, index, top.table("joints"), top.tables("coupled_limits"), urdf_name)
         neutral = np.array(meta.vector("neutral", n, [0.0] * n, angle=True))
         bad = limits.violations(neutral)
         if bad:
@@ -258,22 +257,33 @@ class _Builder:
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
 
     def _check_joints(self, model: pin.Model, joint_names: tuple[str, ...], meta: _Table, urdf_name: str) -> None:
-        actuated = [
-            model.names[i] for i in range(1, model.njoints) if model.joints[i].nq > 0
-        ]
+        actuated = [model.names[i] for i in range(1, model.njoints) if model.joints[i].nq > 0]
         if model.nq != model.nv or any(model.joints[i].nq not in (0, 1) for i in range(1, model.njoints)):
-            raise RobotFileError(str(self.folder / urdf_name), None,
-                                 "only revolute and prismatic joints (and mimic joints) are supported")
+            raise RobotFileError(
+                str(self.folder / urdf_name),
+                None,
+                "only revolute and prismatic joints (and mimic joints) are supported",
+            )
         if list(joint_names) != actuated:
             missing = [j for j in joint_names if j not in actuated]
             if missing:
-                raise meta.error("joints", f"{urdf_name} has no movable joint {missing[0]!r}; "
-                                 f"its movable joints are: {', '.join(actuated)}")
-            raise meta.error("joints", f"must list every movable joint of {urdf_name} in chain order: "
-                             f"{', '.join(actuated)}")
+                raise meta.error(
+                    "joints",
+                    f"{urdf_name} has no movable joint {missing[0]!r}; its movable joints are: {', '.join(actuated)}",
+                )
+            raise meta.error(
+                "joints", f"must list every movable joint of {urdf_name} in chain order: {', '.join(actuated)}"
+            )
 
-    def _limits(self, model: pin.Model, joint_names: tuple[str, ...], index: dict[str, int],
-                joints: _Table, coupled_tables: list[_Table], urdf_name: str) -> JointLimits:
+    def _limits(
+        self,
+        model: pin.Model,
+        joint_names: tuple[str, ...],
+        index: dict[str, int],
+        joints: _Table,
+        coupled_tables: list[_Table],
+        urdf_name: str,
+    ) -> JointLimits:
         n = len(joint_names)
         lower = np.array(model.lowerPositionLimit[:n], dtype=float)
         upper = np.array(model.upperPositionLimit[:n], dtype=float)
@@ -294,11 +304,16 @@ class _Builder:
             jerk[i] = jt.number("jerk", positive=True)
             jt.finish()
             if not (np.isfinite(lower[i]) and np.isfinite(upper[i]) and lower[i] < upper[i]):
-                raise jt.error(None, f"position limits must be finite with lower < upper; got "
-                               f"[{lower[i]}, {upper[i]}] (from {urdf_name} <limit> or this table)")
+                raise jt.error(
+                    None,
+                    f"position limits must be finite with lower < upper; got "
+                    f"[{lower[i]}, {upper[i]}] (from {urdf_name} <limit> or this table)",
+                )
             if not (np.isfinite(velocity[i]) and velocity[i] > 0):
-                raise jt.error("velocity", f"must be positive: set <limit velocity> in {urdf_name} or "
-                               f"'velocity' here, got {velocity[i]}")
+                raise jt.error(
+                    "velocity",
+                    f"must be positive: set <limit velocity> in {urdf_name} or 'velocity' here, got {velocity[i]}",
+                )
         coupled = []
         for ct in coupled_tables:
             cname = ct.string("name")
@@ -319,8 +334,9 @@ class _Builder:
             coupled.append(CoupledLimit(cname, coeffs, lo, hi))
         return JointLimits(joint_names, lower, upper, velocity, acceleration, jerk, tuple(coupled))
 
-    def _geometry(self, top: _Table, index: dict[str, int], model: pin.Model, tool_frame: str,
-                  limits: JointLimits) -> Geometry:
+    def _geometry(
+        self, top: _Table, index: dict[str, int], model: pin.Model, tool_frame: str, limits: JointLimits
+    ) -> Geometry:
         g = top.table("geometry")
 
         def joint(key: str, required: bool = True) -> int | None:
@@ -363,8 +379,9 @@ class _Builder:
         self._check_geometry(g, geom, model, tool_frame, limits)
         return geom
 
-    def _check_geometry(self, g: _Table, geom: Geometry, model: pin.Model, tool_frame: str,
-                        limits: JointLimits) -> None:
+    def _check_geometry(
+        self, g: _Table, geom: Geometry, model: pin.Model, tool_frame: str, limits: JointLimits
+    ) -> None:
         """The family's FK must describe the URDF: a gross mismatch is a data error.
 
         Small mismatches are allowed (an ideal model, as in seed 004): the QP refinement
@@ -381,9 +398,11 @@ class _Builder:
             p = pin.updateFramePlacement(model, data, fid).translation
             worst = max(worst, float(np.linalg.norm(p - geom.fk(q))))
         if worst > 0.05 * reach:
-            raise g.error(None, f"does not describe the URDF: the family's FK is {worst:.4g} m from the URDF's "
-                          "tool point at some configurations (check pivot, lengths and joint names)")
-
+            raise g.error(
+                None,
+                f"does not describe the URDF: the family's FK is {worst:.4g} m from the URDF's "
+                "tool point at some configurations (check pivot, lengths and joint names)",
+            )
 
     def _actuators(self, top: _Table, index: dict[str, int], limits: JointLimits) -> tuple[ActuatorMap, Gripper | None]:
         n = len(index)
@@ -442,10 +461,13 @@ class _Builder:
                 )
                 ends = sorted(float(act.to_command(np.array(x))) for x in angle_range)
                 if ends[0] < pulse_range[0] - 1e-6 or ends[1] > pulse_range[1] + 1e-6:
-                    raise t.error(None, f"its angle range [{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad maps to "
-                                  f"pulses [{ends[0]:.1f}, {ends[1]:.1f}] us, outside its pulse range "
-                                  f"{list(pulse_range)} us: fix centre_pulse/centre_angle/direction, or narrow "
-                                  "the joint limits or angle_range")
+                    raise t.error(
+                        None,
+                        f"its angle range [{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad maps to "
+                        f"pulses [{ends[0]:.1f}, {ends[1]:.1f}] us, outside its pulse range "
+                        f"{list(pulse_range)} us: fix centre_pulse/centre_angle/direction, or narrow "
+                        "the joint limits or angle_range",
+                    )
             elif kind == "stepper":
                 axis = t.string("axis")
                 if axis in axes:
@@ -462,13 +484,18 @@ class _Builder:
             else:
                 raise t.error("type", f"must be 'servo' or 'stepper', got {kind!r}")
             if angle_range[0] > reach[0] + 1e-9 or angle_range[1] < reach[1] - 1e-9:
-                raise t.error("angle_range", f"[{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad does not cover what "
-                              f"the joint limits allow, [{reach[0]:.4f}, {reach[1]:.4f}] rad: narrow the joint limits")
+                raise t.error(
+                    "angle_range",
+                    f"[{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad does not cover what "
+                    f"the joint limits allow, [{reach[0]:.4f}, {reach[1]:.4f}] rad: narrow the joint limits",
+                )
             t.finish()
             actuators.append(act)
         if np.linalg.matrix_rank(rows) < n:
-            raise top.error("actuators", "do not determine every joint: the rows of M must have rank "
-                            f"{n} (each joint driven by some actuator)")
+            raise top.error(
+                "actuators",
+                f"do not determine every joint: the rows of M must have rank {n} (each joint driven by some actuator)",
+            )
         gripper = None
         if top.has("gripper"):
             gt = top.table("gripper")
@@ -491,8 +518,8 @@ class _Builder:
                 raise t.error("range", f"must be [min, max] with 0 <= min < max [m], got {rng}")
             mount = t.string("mount")
             if mount == "scanner":
-                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]),
-                                        position=tuple(t.vector("position", 3)))  # type: ignore[arg-type]
+                x, y, z = t.vector("position", 3)
+                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]), position=(x, y, z))
             elif mount == "frame":
                 frame = t.string("frame")
                 if frame not in frames:

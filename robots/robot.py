@@ -215,8 +215,9 @@ class Robot:
         if s.mount == "scanner":
             return s.scanner_point(distance, bearing)
         if q is None:
-            raise BadRequest(f"sensor {sensor!r} is on frame {s.frame!r}: its reading needs the joint vector q",
-                             field="q")
+            raise BadRequest(
+                f"sensor {sensor!r} is on frame {s.frame!r}: its reading needs the joint vector q", field="q"
+            )
         d = s.check_range(distance)
         qa = self.joint_vector(q)
         assert s.frame is not None
@@ -250,8 +251,13 @@ class Robot:
                 for c in lim.coupled
             ],
             "actuators": [
-                {"name": a.name, "kind": a.kind, "unit": a.unit, "row": self.actuators.M[j].tolist(),
-                 "offset": float(self.actuators.b[j])}
+                {
+                    "name": a.name,
+                    "kind": a.kind,
+                    "unit": a.unit,
+                    "row": self.actuators.M[j].tolist(),
+                    "offset": float(self.actuators.b[j]),
+                }
                 for j, a in enumerate(self.actuators.actuators)
             ],
             "sensors": sorted(self.sensors),

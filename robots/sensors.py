@@ -30,8 +30,9 @@ class RangeSensor:
 
     def check_range(self, distance: float) -> float:
         if not (isinstance(distance, (int, float)) and not isinstance(distance, bool) and math.isfinite(distance)):
-            raise BadRequest(f"sensor {self.name!r}: range must be a finite number [m], got {distance!r}",
-                             field="range")
+            raise BadRequest(
+                f"sensor {self.name!r}: range must be a finite number [m], got {distance!r}", field="range"
+            )
         lo, hi = self.range
         if not (lo <= distance <= hi):
             raise BadRequest(
@@ -45,8 +46,9 @@ class RangeSensor:
         """The base-frame point [m] of a scanner reading (seed 000 eq. 5-6, in the base frame)."""
         d = self.check_range(distance)
         if not (isinstance(bearing, (int, float)) and not isinstance(bearing, bool) and math.isfinite(bearing)):
-            raise BadRequest(f"sensor {self.name!r}: bearing must be a finite number [rad], got {bearing!r}",
-                             field="bearing")
+            raise BadRequest(
+                f"sensor {self.name!r}: bearing must be a finite number [rad], got {bearing!r}", field="bearing"
+            )
         assert self.position is not None
         p = np.array(self.position, dtype=float)
         return p + d * np.array([math.cos(bearing), math.sin(bearing), 0.0])

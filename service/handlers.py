@@ -46,9 +46,16 @@ AdapterCount = Callable[[Robot], int]
 
 
 class Handlers:
-    def __init__(self, arms: Mapping[str, Robot], book: StateBook, limits: Limits,
-                 publish: Publish, adapters: AdapterCount, publish_gripper: Publish | None = None,
-                 publish_estop: Publish | None = None) -> None:
+    def __init__(
+        self,
+        arms: Mapping[str, Robot],
+        book: StateBook,
+        limits: Limits,
+        publish: Publish,
+        adapters: AdapterCount,
+        publish_gripper: Publish | None = None,
+        publish_estop: Publish | None = None,
+    ) -> None:
         self.arms = dict(arms)
         self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
         self.publish_estop: Publish = publish_estop or (lambda arm, msg: None)
@@ -68,17 +75,30 @@ class Handlers:
         check(NOTHING, req)
         known = self.book.current(arm)
         out = arm.describe()
-        out.update({"protocol": PROTOCOL_VERSION, "adapters": self.adapters(arm),
-                    "state": {"source": known.source, "moving": known.moving, "homed": known.homed,
-                              **known.state.to_dict()}})
+        out.update(
+            {
+                "protocol": PROTOCOL_VERSION,
+                "adapters": self.adapters(arm),
+                "state": {
+                    "source": known.source,
+                    "moving": known.moving,
+                    "homed": known.homed,
+                    **known.state.to_dict(),
+                },
+            }
+        )
         return out
 
     def fk(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         req = check(FK, req, arm.joint_names)
         q = arm.joint_vector(req["q"])
         pose = arm.pose(q)
-        return {"q": q.tolist(), "position": pose.position.tolist(), "pitch": pose.pitch,
-                "within_limits": arm.limits.contains(q)}
+        return {
+            "q": q.tolist(),
+            "position": pose.position.tolist(),
+            "pitch": pose.pitch,
+            "within_limits": arm.limits.contains(q),
+        }
 
     def ik(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         if req.get("targets") is not None:
@@ -88,13 +108,23 @@ class Handlers:
             if isinstance(targets, list) and len(targets) > self.limits.max_batch:  # before walking them
                 raise BatchTooLarge(len(targets), self.limits.max_batch)
             req = check(IK_BATCH, req, arm.joint_names)
-            return solvers.solve_ik_batch(arm, req["targets"], approach=req.get("approach"), seeds=req.get("seeds"),
-                                          tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
-                                          check=deadline.check).to_dict()
+            return solvers.solve_ik_batch(
+                arm,
+                req["targets"],
+                approach=req.get("approach"),
+                seeds=req.get("seeds"),
+                tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
+                check=deadline.check,
+            ).to_dict()
         req = check(IK_ONE, req, arm.joint_names)
-        return solvers.solve_ik(arm, req["target"], approach=req.get("approach"), seed=req.get("seed"),
-                                tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
-                                quantise=req.get("quantise", False)).to_dict()
+        return solvers.solve_ik(
+            arm,
+            req["target"],
+            approach=req.get("approach"),
+            seed=req.get("seed"),
+            tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
+            quantise=req.get("quantise", False),
+        ).to_dict()
 
     def plan(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         req = check(PLAN, req, arm.joint_names)
@@ -110,9 +140,11 @@ class Handlers:
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
         if not known.homed:
-            raise PositionUnknown(f"{arm.name}'s adapter does not know where the arm is (its controller lost the "
-                                  "position): home it or confirm its rest pose with `armd unlock` first",
-                                  robot=arm.name)
+            raise PositionUnknown(
+                f"{arm.name}'s adapter does not know where the arm is (its controller lost the "
+                "position): home it or confirm its rest pose with `armd unlock` first",
+                robot=arm.name,
+            )
         msg = self._message(arm, traj, "move")
         goal = req["goal"]
         if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
@@ -133,9 +165,16 @@ class Handlers:
             adapter = self.publish(arm, msg)
             source = "adapter"
         self.book.commanded(arm.name, traj)
-        return {"id": msg["id"], "adapter": adapter, "path": traj.path, "duration": traj.duration,
-                "samples": len(traj.times), "start": traj.start.to_dict(), "goal": traj.position[-1].tolist(),
-                "start_source": source}
+        return {
+            "id": msg["id"],
+            "adapter": adapter,
+            "path": traj.path,
+            "duration": traj.duration,
+            "samples": len(traj.times),
+            "start": traj.start.to_dict(),
+            "goal": traj.position[-1].tolist(),
+            "start_source": source,
+        }
 
     def stop(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Never refused: not for lateness, not for a state outside the limits. The stop goes
@@ -150,8 +189,12 @@ class Handlers:
         except ArmdError:  # (an estimate only: the adapters brake from their own states)
             traj = planning.plan_stop(arm, JointState.at_rest(arm.limits.clip(known.state.position)), clamp=True)
         self.book.commanded(arm.name, traj)
-        return {"id": ident, "duration": traj.duration, "adapters": self.adapters(arm),
-                "rest": traj.position[-1].tolist()}
+        return {
+            "id": ident,
+            "duration": traj.duration,
+            "adapters": self.adapters(arm),
+            "rest": traj.position[-1].tolist(),
+        }
 
     def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between: published to the adapters."""
@@ -176,8 +219,17 @@ class Handlers:
             start = self.book.current(arm).state
         path = req.get("path", "joint")
         speed = req.get("speed", 1.0)
-        return planning.plan(arm, start, req["goal"], path=path, speed=speed, rate_hz=req.get("rate_hz"), via=via,
-                             max_samples=self.limits.max_samples, check=deadline.check)
+        return planning.plan(
+            arm,
+            start,
+            req["goal"],
+            path=path,
+            speed=speed,
+            rate_hz=req.get("rate_hz"),
+            via=via,
+            max_samples=self.limits.max_samples,
+            check=deadline.check,
+        )
 
     @staticmethod
     def _message(arm: Robot, traj: planning.Trajectory, kind: str) -> dict[str, Any]:
@@ -201,10 +253,8 @@ def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
         return None
     if any(x.shape != (arm.nq,) or not np.all(np.isfinite(x)) for x in (q, v, a)):
         return None
-    if not arm.limits.contains(q, tol=REPORT_POSITION_SLACK) \
-            or np.any(np.abs(v) > arm.limits.velocity * REPORT_SPEED_SLACK):
+    if not arm.limits.contains(q, tol=REPORT_POSITION_SLACK) or np.any(
+        np.abs(v) > arm.limits.velocity * REPORT_SPEED_SLACK
+    ):
         return None
     return JointState(q, v, a)
-
-
-

@@ -83,8 +83,9 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     if version is None:  # absent, or null: an optional field given as null is absent
         return obj
     if version != PROTOCOL_VERSION or isinstance(version, bool):
-        raise BadRequest(f"protocol version {version!r} is not spoken here; this service speaks {PROTOCOL_VERSION}",
-                         field="protocol")
+        raise BadRequest(
+            f"protocol version {version!r} is not spoken here; this service speaks {PROTOCOL_VERSION}", field="protocol"
+        )
     return obj
 
 
@@ -104,16 +105,6 @@ def _depth(obj: object, level: int) -> int:
 
 REPORT_POSITION_SLACK = 0.05  # [rad] a reported position may be this far outside the limits (quantisation, noise)
 REPORT_SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
-
-
-
-
-
-
-
-
-
-
 
 
 def encode(obj: Mapping[str, Any]) -> bytes:
@@ -408,13 +399,13 @@ class Obj(Shape):
         if self.top:
             for k in v:
                 if k not in known and k not in ENVELOPE:
-                    raise BadRequest(f"unknown field {k!r}; this verb takes: {', '.join(known) or 'nothing'}",
-                                     field=k)
+                    raise BadRequest(f"unknown field {k!r}; this verb takes: {', '.join(known) or 'nothing'}", field=k)
         else:
             for k in v:
                 if k not in known:
-                    raise BadRequest(f"unknown field {prefix + k!r} ({field} takes: {', '.join(known)})",
-                                     field=f"{prefix}{k}")
+                    raise BadRequest(
+                        f"unknown field {prefix + k!r} ({field} takes: {', '.join(known)})", field=f"{prefix}{k}"
+                    )
         obj: Mapping[str, Any] = v
         if any(x is None for x in v.values()):  # null is absent
             obj = {k: x for k, x in v.items() if x is not None}
@@ -426,8 +417,9 @@ class Obj(Shape):
             if a in obj and b in obj:
                 raise BadRequest(f"{prefix}{a} and {prefix}{b} exclude each other: {why}", field=prefix + b)
         if self.one_of and not any(name in obj for name in self.one_of):
-            raise BadRequest(f"{where} needs one of {', '.join(repr(n) for n in self.one_of)}",
-                             field=field or self.one_of[0])
+            raise BadRequest(
+                f"{where} needs one of {', '.join(repr(n) for n in self.one_of)}", field=field or self.one_of[0]
+            )
         changed = obj is not v
         out = dict(obj) if changed else None
         for k, x in obj.items():
@@ -451,42 +443,80 @@ def check(shape: Obj, req: Mapping[str, Any], joints: Joints = ()) -> dict[str, 
 POINT = Vec(3, "m", MAX_METRES)
 JOINTS = Vec(None, "rad", MAX_RADIANS)
 PITCH = Num("rad", -math.pi, math.pi)
-SENSOR_READING = Obj({"sensor": Word(), "range": Num("m", -MAX_METRES, MAX_METRES),
-                      "bearing": Num("rad", -MAX_RADIANS, MAX_RADIANS)},
-                     required=(("sensor", "the sensor's name"), ("range", "the reading [m]")),
-                     what='a sensor reading {"sensor", "range", "bearing"}')
-TARGET = Either({"list": POINT, "object": SENSOR_READING},
-                'a point [x, y, z] in metres or a sensor reading {"sensor", "range", "bearing"}')
-APPROACH = Either({"string": Word(APPROACH_WORDS), "number": PITCH},
-                  "'parallel', 'perpendicular', 'free' or a pitch in [-pi, pi] rad")
-APPROACHES = Either({"string": Word(APPROACH_WORDS), "number": PITCH, "list": ListOf(PITCH)},
-                    "'parallel', 'perpendicular', 'free', a pitch in [-pi, pi] rad or one pitch per target")
-GOAL = Either({"list": JOINTS,
-               "object": Obj({"target": TARGET, "approach": APPROACH, "q": JOINTS},
-                             exclusive=(("target", "q", "a goal is a Cartesian target or a joint vector"),
-                                        ("q", "approach", "an approach is for a Cartesian target")),
-                             one_of=("target", "q"), what='a goal {"target", "approach"} or {"q"}')},
-              'a joint vector [rad], {"target": [x, y, z], "approach": ...} or {"q": [...]}')
-START = Either({"list": JOINTS,
-                "object": Obj({"position": JOINTS, "velocity": Vec(None, "rad/s", MAX_RATE),
-                               "acceleration": Vec(None, "rad/s^2", MAX_RATE)},
-                              required=(("position", "the joint vector [rad]"),),
-                              what='a state {"position", "velocity", "acceleration"}')},
-               'a joint vector [rad] or {"position", "velocity", "acceleration"}')
-_MOTION = {"goal": GOAL, "path": Word(PATH_WORDS), "speed": Num(), "rate_hz": Num("Hz"),
-           "via": ListOf(GOAL, items_are="goals")}
+SENSOR_READING = Obj(
+    {"sensor": Word(), "range": Num("m", -MAX_METRES, MAX_METRES), "bearing": Num("rad", -MAX_RADIANS, MAX_RADIANS)},
+    required=(("sensor", "the sensor's name"), ("range", "the reading [m]")),
+    what='a sensor reading {"sensor", "range", "bearing"}',
+)
+TARGET = Either(
+    {"list": POINT, "object": SENSOR_READING},
+    'a point [x, y, z] in metres or a sensor reading {"sensor", "range", "bearing"}',
+)
+APPROACH = Either(
+    {"string": Word(APPROACH_WORDS), "number": PITCH}, "'parallel', 'perpendicular', 'free' or a pitch in [-pi, pi] rad"
+)
+APPROACHES = Either(
+    {"string": Word(APPROACH_WORDS), "number": PITCH, "list": ListOf(PITCH)},
+    "'parallel', 'perpendicular', 'free', a pitch in [-pi, pi] rad or one pitch per target",
+)
+GOAL = Either(
+    {
+        "list": JOINTS,
+        "object": Obj(
+            {"target": TARGET, "approach": APPROACH, "q": JOINTS},
+            exclusive=(
+                ("target", "q", "a goal is a Cartesian target or a joint vector"),
+                ("q", "approach", "an approach is for a Cartesian target"),
+            ),
+            one_of=("target", "q"),
+            what='a goal {"target", "approach"} or {"q"}',
+        ),
+    },
+    'a joint vector [rad], {"target": [x, y, z], "approach": ...} or {"q": [...]}',
+)
+START = Either(
+    {
+        "list": JOINTS,
+        "object": Obj(
+            {
+                "position": JOINTS,
+                "velocity": Vec(None, "rad/s", MAX_RATE),
+                "acceleration": Vec(None, "rad/s^2", MAX_RATE),
+            },
+            required=(("position", "the joint vector [rad]"),),
+            what='a state {"position", "velocity", "acceleration"}',
+        ),
+    },
+    'a joint vector [rad] or {"position", "velocity", "acceleration"}',
+)
+_MOTION = {
+    "goal": GOAL,
+    "path": Word(PATH_WORDS),
+    "speed": Num(),
+    "rate_hz": Num("Hz"),
+    "via": ListOf(GOAL, items_are="goals"),
+}
 
 NOTHING = Obj({}, top=True)  # robots, info, stop
 FK = Obj({"q": JOINTS}, required=(("q", "the joint vector [rad]"),), top=True)
 # (ik: the handler picks IK_ONE or IK_BATCH by which of target and targets is there, and refuses
 # both; the other one is named in each so that it may be given as null, which is absent)
-IK_ONE = Obj({"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag(),
-              "targets": ANY},
-             required=(("target", "[x, y, z] in metres, or a sensor reading (or 'targets', a batch)"),), top=True)
-IK_BATCH = Obj({"targets": ListOf(POINT, min_items=1, items_are="[x, y, z] points in metres"),
-                "approach": APPROACHES, "seeds": Rows(JOINTS), "tolerance": Num("m"), "target": ANY},
-               required=(("targets", "a list of [x, y, z] points"),), top=True)
-PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),),
-           top=True)
+IK_ONE = Obj(
+    {"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag(), "targets": ANY},
+    required=(("target", "[x, y, z] in metres, or a sensor reading (or 'targets', a batch)"),),
+    top=True,
+)
+IK_BATCH = Obj(
+    {
+        "targets": ListOf(POINT, min_items=1, items_are="[x, y, z] points in metres"),
+        "approach": APPROACHES,
+        "seeds": Rows(JOINTS),
+        "tolerance": Num("m"),
+        "target": ANY,
+    },
+    required=(("targets", "a list of [x, y, z] points"),),
+    top=True,
+)
+PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),), top=True)
 MOVE = Obj(_MOTION, required=PLAN.required, top=True)
 GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)

@@ -81,8 +81,15 @@ class _Acceptance:
 class Service:
     """Serves ``arms`` on ``session`` until :meth:`close`."""
 
-    def __init__(self, session: zenoh.Session, arms: Mapping[str, Robot], *, prefix: str = "armd",
-                 limits: Limits | None = None, workers: int = 4) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        arms: Mapping[str, Robot],
+        *,
+        prefix: str = "armd",
+        limits: Limits | None = None,
+        workers: int = 4,
+    ) -> None:
         self.session = session
         self.arms = dict(arms)
         self.prefix = prefix.rstrip("/")
@@ -95,15 +102,25 @@ class Service:
         self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
         self._ignored: dict[str, int] = {}  # states ignored, by reason
         self._said = 0.0  # when ignored states were last logged
-        self.handlers = Handlers(self.arms, self.book, limits or Limits(), self._publish, self._adapter_count,
-                                 self._publish_gripper, self._publish_estop)
+        self.handlers = Handlers(
+            self.arms,
+            self.book,
+            limits or Limits(),
+            self._publish,
+            self._adapter_count,
+            self._publish_gripper,
+            self._publish_estop,
+        )
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
         # trajectories are never dropped under congestion (the default drops bursts)
-        self._publishers = {name: session.declare_publisher(f"{self.prefix}/{name}/trajectory", encoding=JSON,
-                                                            congestion_control=zenoh.CongestionControl.BLOCK)
-                            for name in self.arms}
+        self._publishers = {
+            name: session.declare_publisher(
+                f"{self.prefix}/{name}/trajectory", encoding=JSON, congestion_control=zenoh.CongestionControl.BLOCK
+            )
+            for name in self.arms
+        }
         self._served = 0
         self._errors = 0
         self._late = 0  # answered ``deadline``
@@ -120,8 +137,9 @@ class Service:
         # would take queries another could answer. Until it is declared, clients are told at once
         # that nothing serves the key, and other replicas answer.
         started = time.monotonic()
-        log.info("armd service %s warming up %s (compiling on a first start: about a minute)", self.id,
-                 ", ".join(self.arms))
+        log.info(
+            "armd service %s warming up %s (compiling on a first start: about a minute)", self.id, ", ".join(self.arms)
+        )
         self._warm_up()
         log.info("warmed up in %.1f s", time.monotonic() - started)
         self._entities: list[Any] = [
@@ -168,14 +186,25 @@ class Service:
     def _pool_for(self, key: str, route: Route | None) -> ThreadPoolExecutor:
         """``stop`` on a pool of its own; ``move`` and ``gripper`` on another (what moves the arm
         never waits behind IK batches and plans); everything else on the workers."""
-        verb = route[1] if route is not None else (
-            key.rsplit("/", 1)[-1] if key.count("/") == self.prefix.count("/") + 2 else "")
+        verb = (
+            route[1]
+            if route is not None
+            else (key.rsplit("/", 1)[-1] if key.count("/") == self.prefix.count("/") + 2 else "")
+        )
         if verb == "stop":
             return self._stops
         return self._commands if verb in ("move", "gripper") else self._pool
 
-    def _serve(self, query: zenoh.Query, key_expr: zenoh.KeyExpr, arrived: float, key: str, body: bytes,
-               route: Route | None, pooled: bool) -> None:
+    def _serve(
+        self,
+        query: zenoh.Query,
+        key_expr: zenoh.KeyExpr,
+        arrived: float,
+        key: str,
+        body: bytes,
+        route: Route | None,
+        pooled: bool,
+    ) -> None:
         outcome = "error"
         try:
             with query:  # finalises the query when done: one reply, then the end
@@ -210,7 +239,7 @@ class Service:
 
     def _dispatch(self, key: str, payload: bytes, deadline: Deadline, route: Route | None = None) -> dict[str, Any]:
         if route is None:  # not a key of ours as it stands: parsed here, and refused once the payload is read
-            rest = key[len(self.prefix) + 1:] if key.startswith(self.prefix + "/") else key
+            rest = key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else key
             parts = rest.split("/")
             urgent = len(parts) == 2 and parts[1] == "stop"
         else:
@@ -270,16 +299,25 @@ class Service:
         try:
             self._publishers[arm.name].put(encode(message))
             if not waiter.done.wait(ACCEPT_TIMEOUT):
-                self._publish_estop(arm, {"id": uuid.uuid4().hex, "by": "service",
-                                          "reason": f"no adapter accepted trajectory {ident}"})
-                raise NoAdapter(f"no adapter of {arm.name} accepted the trajectory within {ACCEPT_TIMEOUT:.0f} s "
-                                "(an estop was sent, so that a late one does not move the arm)", robot=arm.name)
+                self._publish_estop(
+                    arm, {"id": uuid.uuid4().hex, "by": "service", "reason": f"no adapter accepted trajectory {ident}"}
+                )
+                raise NoAdapter(
+                    f"no adapter of {arm.name} accepted the trajectory within {ACCEPT_TIMEOUT:.0f} s "
+                    "(an estop was sent, so that a late one does not move the arm)",
+                    robot=arm.name,
+                )
         finally:
             with self._lock:
                 self._pending.pop(ident, None)
         if waiter.adapter is None:
-            raise Rejected(f"{arm.name}'s adapter refused the trajectory: {waiter.reason}", robot=arm.name,
-                           adapter=waiter.by, reason=waiter.reason, error=waiter.error)
+            raise Rejected(
+                f"{arm.name}'s adapter refused the trajectory: {waiter.reason}",
+                robot=arm.name,
+                adapter=waiter.by,
+                reason=waiter.reason,
+                error=waiter.error,
+            )
         return waiter.adapter
 
     def _on_event(self, sample: zenoh.Sample) -> None:
@@ -310,12 +348,21 @@ class Service:
                     waiter.done.set()
 
     def _publish_estop(self, arm: Robot, message: dict[str, Any]) -> None:
-        self.session.put(f"{self.prefix}/{arm.name}/estop", encode(message), encoding=JSON,
-                         congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.REAL_TIME)
+        self.session.put(
+            f"{self.prefix}/{arm.name}/estop",
+            encode(message),
+            encoding=JSON,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+            priority=zenoh.Priority.REAL_TIME,
+        )
 
     def _publish_gripper(self, arm: Robot, message: dict[str, Any]) -> None:
-        self.session.put(f"{self.prefix}/{arm.name}/gripper", encode(message), encoding=JSON,
-                         congestion_control=zenoh.CongestionControl.BLOCK)
+        self.session.put(
+            f"{self.prefix}/{arm.name}/gripper",
+            encode(message),
+            encoding=JSON,
+            congestion_control=zenoh.CongestionControl.BLOCK,
+        )
 
     def _adapter_count(self, arm: Robot) -> int:
         with self._lock:
@@ -359,8 +406,12 @@ class Service:
             q = np.asarray(msg["position"], dtype=float)
             v = np.asarray(msg.get("velocity", np.zeros(arm.nq)), dtype=float)
             a = np.asarray(msg.get("acceleration", np.zeros(arm.nq)), dtype=float)
-            if q.shape != (arm.nq,) or v.shape != (arm.nq,) or a.shape != (arm.nq,) \
-                    or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a))):
+            if (
+                q.shape != (arm.nq,)
+                or v.shape != (arm.nq,)
+                or a.shape != (arm.nq,)
+                or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a)))
+            ):
                 raise ValueError("bad shape or not finite")
         except (ValueError, KeyError, TypeError, AttributeError, orjson.JSONDecodeError):
             self._ignore(robot, "malformed")
@@ -406,8 +457,9 @@ class Service:
                 return
             self._said = now
             counts = ", ".join(f"{n} {reason}" for reason, n in sorted(self._ignored.items()))
-        log.warning("ignoring states on %s/%s/state that no live adapter vouches for (so far: %s)",
-                    self.prefix, robot, counts)
+        log.warning(
+            "ignoring states on %s/%s/state that no live adapter vouches for (so far: %s)", self.prefix, robot, counts
+        )
 
     # -- life ------------------------------------------------------------------------------
 
@@ -415,8 +467,13 @@ class Service:
         """Requests ``served`` (answered), of them ``errors`` (error replies) and ``late``
         (answered ``deadline``), and ``in_flight``: handed to a pool and not answered yet."""
         with self._lock:
-            return {"served": self._served, "errors": self._errors, "late": self._late,
-                    "in_flight": self._in_flight, "states_ignored": sum(self._ignored.values())}
+            return {
+                "served": self._served,
+                "errors": self._errors,
+                "late": self._late,
+                "in_flight": self._in_flight,
+                "states_ignored": sum(self._ignored.values()),
+            }
 
     def close(self) -> None:
         for entity in self._entities:
@@ -439,7 +496,7 @@ def _quick(key: str, body: bytes, route: Route | None) -> bool:
     """A request short enough to answer on the thread that received it (microseconds to a
     couple of milliseconds): fk, info, robots, and IK of one target. Handing it to a worker
     would cost more than the work; everything else queues for the workers."""
-    verb = route[1] if route is not None else key[key.rfind("/") + 1:]
+    verb = route[1] if route is not None else key[key.rfind("/") + 1 :]
     if verb in ("fk", "info", "robots"):
         return True
     return verb == "ik" and len(body) <= QUICK_BYTES and b'"targets"' not in body

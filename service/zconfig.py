@@ -48,8 +48,13 @@ def _reconnect_fast(conf: zenoh.Config) -> zenoh.Config:
     return conf
 
 
-def network_config(*, listen: list[str] | None = None, connect: list[str] | None = None,
-                   config_file: str | None = None, mode: str | None = None) -> zenoh.Config:
+def network_config(
+    *,
+    listen: list[str] | None = None,
+    connect: list[str] | None = None,
+    config_file: str | None = None,
+    mode: str | None = None,
+) -> zenoh.Config:
     """The configuration of a long-running armd process (service, adapter, router).
 
     - ``config_file``: a Zenoh JSON5 configuration, used as it is: its endpoints, TLS,
@@ -146,8 +151,11 @@ def unauthenticated_endpoints(conf: zenoh.Config) -> list[str]:
     if json.loads(conf.get_json("transport/auth/usrpwd/dictionary_file")):
         return []
     mtls = json.loads(conf.get_json("transport/link/tls/enable_mtls")) is True
-    return [e for e in endpoints(conf, "listen")
-            if is_loopback(e) is False and not (mtls and e.partition("/")[0] in _TLS_LINKS)]
+    return [
+        e
+        for e in endpoints(conf, "listen")
+        if is_loopback(e) is False and not (mtls and e.partition("/")[0] in _TLS_LINKS)
+    ]
 
 
 def exposure_warning(conf: zenoh.Config) -> str | None:
@@ -155,6 +163,8 @@ def exposure_warning(conf: zenoh.Config) -> str | None:
     open_ = unauthenticated_endpoints(conf)
     if not open_:
         return None
-    return (f"listening on {', '.join(open_)} with no authentication: anyone on that network can query the "
-            "service, publish trajectories and move the arms; see docs/security.md (user/password, TLS, "
-            "access control) or listen on 127.0.0.1")
+    return (
+        f"listening on {', '.join(open_)} with no authentication: anyone on that network can query the "
+        "service, publish trajectories and move the arms; see docs/security.md (user/password, TLS, "
+        "access control) or listen on 127.0.0.1"
+    )

@@ -83,8 +83,16 @@ def _gauss(K: FloatArray, r: FloatArray, out: FloatArray) -> bool:
 
 
 @jit
-def solve_qp(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, C: FloatArray, cl: FloatArray,
-             cu: FloatArray, x: FloatArray) -> bool:
+def solve_qp(
+    H: FloatArray,
+    g: FloatArray,
+    lb: FloatArray,
+    ub: FloatArray,
+    C: FloatArray,
+    cl: FloatArray,
+    cu: FloatArray,
+    x: FloatArray,
+) -> bool:
     """Solve into ``x`` (n,), starting from x = 0 (which must be feasible). True on success."""
     n = H.shape[0]
     m = 2 * n + 2 * C.shape[0]

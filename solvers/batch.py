@@ -70,8 +70,9 @@ def _targets(targets: object) -> FloatArray:
     except (TypeError, ValueError):
         raise BadRequest("targets must be a list of [x, y, z] points in metres", field="targets") from None
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
-        raise BadRequest(f"targets must be a non-empty list of [x, y, z] points, got shape {list(pts.shape)}",
-                         field="targets")
+        raise BadRequest(
+            f"targets must be a non-empty list of [x, y, z] points, got shape {list(pts.shape)}", field="targets"
+        )
     if not np.all(np.isfinite(pts)):
         bad = int(np.argmin(np.all(np.isfinite(pts), axis=1)))
         raise BadRequest(f"targets[{bad}] is not finite: {pts[bad].tolist()}", field="targets", index=bad)
@@ -103,8 +104,9 @@ def solve_ik_batch(
     if per_target:
         pitches = np.asarray(approach, dtype=float) if len(approach) else np.zeros(0)  # type: ignore[arg-type]
         if pitches.shape != (m,):
-            raise BadRequest(f"approach must be one approach or {m} pitches, got shape {list(pitches.shape)}",
-                             field="approach")
+            raise BadRequest(
+                f"approach must be one approach or {m} pitches, got shape {list(pitches.shape)}", field="approach"
+            )
         for p in pitches.tolist():
             approach_pitch(robot, p)  # each one valid for this arm
         pitch: float | None = 0.0
@@ -119,8 +121,11 @@ def solve_ik_batch(
         elif s.shape == (m, n) and np.all(np.isfinite(s)):
             refs = s
         else:
-            raise BadRequest(f"seeds must be one joint vector of {n} values or one per target ({m} x {n}), "
-                             f"got shape {list(s.shape)}", field="seeds")
+            raise BadRequest(
+                f"seeds must be one joint vector of {n} values or one per target ({m} x {n}), "
+                f"got shape {list(s.shape)}",
+                field="seeds",
+            )
     refs = np.ascontiguousarray(refs)
     if isinstance(tolerance, bool) or not (
         isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
@@ -148,8 +153,26 @@ def solve_ik_batch(
         prefs = np.ascontiguousarray(np.broadcast_to(shared, (m, len(shared))))  # (one compiled layout)
     codes = np.empty(m, dtype=np.int64)
     ids = np.empty(m, dtype=np.int64)
-    solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
-               refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
+    solve_many(
+        fp.P,
+        fp.J,
+        arm.lower,
+        arm.upper,
+        arm.weights,
+        arm.C,
+        arm.clo,
+        arm.chi,
+        arm.exact_pitch_search,
+        refs,
+        pts,
+        prefs,
+        q,
+        codes,
+        pitch_out,
+        ids,
+        err,
+        reached,
+    )
     solved = codes != NONE
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
@@ -164,20 +187,38 @@ def solve_ik_batch(
             check()
         a_i = float(pitches[i]) if per_target else approach
         p_i = float(pitches[i]) if per_target else pitch
-        r = solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance) if solved[i] \
+        r = (
+            solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance)
+            if solved[i]
             else _closest(arm, pts[i], p_i, refs[i], tolerance, 0)
+        )
         _store(int(i), r, status, branch, q, err, reached, pitch_out)
     return BatchIKResult(status, q, err, reached, pitch_out, branch)
 
 
-def _store(i: int, r: IKResult, status: NDArray[np.str_], branch: NDArray[np.str_], q: FloatArray,
-           err: FloatArray, reached: FloatArray, pitch: FloatArray) -> None:
+def _store(
+    i: int,
+    r: IKResult,
+    status: NDArray[np.str_],
+    branch: NDArray[np.str_],
+    q: FloatArray,
+    err: FloatArray,
+    reached: FloatArray,
+    pitch: FloatArray,
+) -> None:
     status[i], branch[i], q[i], err[i], reached[i], pitch[i] = (
-        r.status, r.branch, r.q, r.position_error, r.reached, r.pitch)
+        r.status,
+        r.branch,
+        r.q,
+        r.position_error,
+        r.reached,
+        r.pitch,
+    )
 
 
-def reachable(robot: Robot, targets: object, *, approach: object = None,
-              tolerance: float = DEFAULT_TOLERANCE) -> NDArray[np.bool_]:
+def reachable(
+    robot: Robot, targets: object, *, approach: object = None, tolerance: float = DEFAULT_TOLERANCE
+) -> NDArray[np.bool_]:
     """Which targets :func:`solve_ik_batch` answers ``ok`` (with ``approach``), for maps of the
     workspace: the same closed-form stage, without the closest-point search that an
     unreachable target's answer needs (so a mostly unreachable grid costs what a reachable
@@ -197,8 +238,26 @@ def reachable(robot: Robot, targets: object, *, approach: object = None,
     codes, ids = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
     pitch_out, err = np.empty(m), np.empty(m)
     fp = arm.fp
-    solve_many(fp.P, fp.J, arm.lower, arm.upper, arm.weights, arm.C, arm.clo, arm.chi, arm.exact_pitch_search,
-               refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
+    solve_many(
+        fp.P,
+        fp.J,
+        arm.lower,
+        arm.upper,
+        arm.weights,
+        arm.C,
+        arm.clo,
+        arm.chi,
+        arm.exact_pitch_search,
+        refs,
+        pts,
+        prefs,
+        q,
+        codes,
+        pitch_out,
+        ids,
+        err,
+        reached,
+    )
     good: NDArray[np.bool_] = (codes != NONE) & (err <= tolerance)
     if pitch is not None:
         good &= codes == EXACT

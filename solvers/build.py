@@ -18,8 +18,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-COMPILED = {"solvers": ("activeset", "analytic", "closest", "family", "geometric", "jit", "limits", "pitch"),
-            "planning": ("compiled",), "robots": ("angles", "types")}
+COMPILED = {
+    "solvers": ("activeset", "analytic", "closest", "family", "geometric", "jit", "limits", "pitch"),
+    "planning": ("compiled",),
+    "robots": ("angles", "types"),
+}
 
 
 def _import_tree(where: Path) -> None:
@@ -62,8 +65,10 @@ def build(target: Path) -> None:
         cc.export("source_digest", "i8()")(source_digest)
         target.parent.mkdir(parents=True, exist_ok=True)
         cc.compile()
-    print(f"armd: built {target.name} ({len(jit.ENTRIES)} entry points) in {time.monotonic() - started:.0f} s",
-          file=sys.stderr)
+    print(
+        f"armd: built {target.name} ({len(jit.ENTRIES)} entry points) in {time.monotonic() - started:.0f} s",
+        file=sys.stderr,
+    )
 
 
 if __name__ == "__main__":

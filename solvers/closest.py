@@ -69,8 +69,9 @@ def family_jacobian(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) 
 
 
 @jit
-def _cost(P: FloatArray, J: IntArray, q: FloatArray, target: FloatArray, pitch: float, w2: float,
-          p: FloatArray) -> tuple[float, float]:
+def _cost(
+    P: FloatArray, J: IntArray, q: FloatArray, target: FloatArray, pitch: float, w2: float, p: FloatArray
+) -> tuple[float, float]:
     family_fk(P, J, q, p)
     e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
     perr = 0.0
@@ -84,9 +85,22 @@ def _cost(P: FloatArray, J: IntArray, q: FloatArray, target: FloatArray, pitch: 
 
 
 @jit
-def refine_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                  clo: FloatArray, chi: FloatArray, target: FloatArray, pitch: float, w2: float,
-                  q: FloatArray, max_iter: int, step: float, tol: float) -> tuple[float, float, int]:
+def refine_family(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    q: FloatArray,
+    max_iter: int,
+    step: float,
+    tol: float,
+) -> tuple[float, float, int]:
     """Levenberg-Marquardt from ``q`` (within limits), in place: (position error [m], pitch error
     [rad], iterations). ``w2 > 0`` adds the pitch task (sum of pitch joints) with that weight^2."""
     n = q.shape[0]
@@ -168,8 +182,9 @@ def refine_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 
 
 @jit
-def _planar_rows(J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray,
-                 chi: FloatArray, rows: FloatArray) -> int:
+def _planar_rows(
+    J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray, chi: FloatArray, rows: FloatArray
+) -> int:
     """The limits on the shoulder and elbow angles (t1, t2) as rows ``lo <= a1 t1 + a2 t2 <= hi``
     into ``rows`` (k, 4), (a1, a2) one of (1, 0), (0, 1), (1, 1): the box, then the coupled limits
     (MARGIN inside, as the iteration keeps them, so rounding never leaves them).
@@ -180,8 +195,9 @@ def _planar_rows(J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArra
     the yaw or another joint, or mixing t1 and t2 otherwise; a joint without finite limits).
     """
     j1, j2 = J[1], J[2]
-    if not (math.isfinite(lower[j1]) and math.isfinite(upper[j1]) and math.isfinite(lower[j2])
-            and math.isfinite(upper[j2])):
+    if not (
+        math.isfinite(lower[j1]) and math.isfinite(upper[j1]) and math.isfinite(lower[j2]) and math.isfinite(upper[j2])
+    ):
         return -1
     rows[0, 0], rows[0, 1], rows[0, 2], rows[0, 3] = 1.0, 0.0, lower[j1], upper[j1]
     rows[1, 0], rows[1, 1], rows[1, 2], rows[1, 3] = 0.0, 1.0, lower[j2], upper[j2]
@@ -236,8 +252,9 @@ def _segment(rows: FloatArray, nr: int, p1: float, p2: float, d1: float, d2: flo
 
 
 @jit
-def _add_edge(P: FloatArray, rows: FloatArray, nr: int, p1: float, p2: float, d1: float, d2: float,
-              edges: FloatArray, k: int) -> int:
+def _add_edge(
+    P: FloatArray, rows: FloatArray, nr: int, p1: float, p2: float, d1: float, d2: float, edges: FloatArray, k: int
+) -> int:
     """The part of the line (t1, t2) = (p1, p2) + s (d1, d2) within every row as row ``k`` of ``edges``:
     [p1, p2, d1, d2, s_lo, s_hi, centre u, centre z, radius, angle at s = 0] of the circle the tool
     moves on (its angle on the circle is the last column + s). Returns k + 1, or k if the line
@@ -311,8 +328,7 @@ def _offer(P: FloatArray, ctx: FloatArray, t1: float, t2: float, best: FloatArra
 
 
 @jit
-def _offer_on_edge(P: FloatArray, rows: FloatArray, e: FloatArray, s: float, ctx: FloatArray,
-                   best: FloatArray) -> None:
+def _offer_on_edge(P: FloatArray, rows: FloatArray, e: FloatArray, s: float, ctx: FloatArray, best: FloatArray) -> None:
     """:func:`_offer` the point ``s`` of edge ``e``, its box coordinates clamped (exact at the box's lines)."""
     t1 = min(max(e[0] + s * e[2], rows[0, 2]), rows[0, 3])
     t2 = min(max(e[1] + s * e[3], rows[1, 2]), rows[1, 3])
@@ -336,8 +352,7 @@ def _nearest_on_edge(e: FloatArray, a: float, zt: float) -> float:
 
 
 @jit
-def _reach(P: FloatArray, rows: FloatArray, nr: int, a: float, zt: float, ctx: FloatArray,
-           best: FloatArray) -> None:
+def _reach(P: FloatArray, rows: FloatArray, nr: int, a: float, zt: float, ctx: FloatArray, best: FloatArray) -> None:
     """Offer every pose that puts the tool exactly on (a, zt) in the arm's plane (both elbows,
     every turn of each angle within its box) within every row."""
     sol = np.empty((2, 2))
@@ -352,8 +367,9 @@ def _reach(P: FloatArray, rows: FloatArray, nr: int, a: float, zt: float, ctx: F
 
 
 @jit
-def _planar(P: FloatArray, rows: FloatArray, nr: int, edges: FloatArray, ne: int, a: float, ctx: FloatArray,
-            best: FloatArray) -> None:
+def _planar(
+    P: FloatArray, rows: FloatArray, nr: int, edges: FloatArray, ne: int, a: float, ctx: FloatArray, best: FloatArray
+) -> None:
     """Offer the stationary points of the planar problem for the target (a, z) in the arm's plane
     (the yaw held): each edge's nearest point, and an exact reach. (The vertices are offered once.)"""
     for k in range(ne):
@@ -401,8 +417,16 @@ def _minimum_between(ccu: float, Z: float, rho: float, py: float, h: float, lo: 
 
 
 @jit
-def _edge_minima(P: FloatArray, rows: FloatArray, e: FloatArray, ctx: FloatArray, alphas: FloatArray,
-                 A: FloatArray, B: FloatArray, best: FloatArray) -> None:
+def _edge_minima(
+    P: FloatArray,
+    rows: FloatArray,
+    e: FloatArray,
+    ctx: FloatArray,
+    alphas: FloatArray,
+    A: FloatArray,
+    B: FloatArray,
+    best: FloatArray,
+) -> None:
     """Offer the edge's stationary points with the yaw free, one per local minimum over the
     target's bearing alpha (yaw = bearing - alpha) of the squared error of the edge's nearest
     circle point: the slope is sampled on ``alphas`` (the yaw's range), each sign change from
@@ -426,8 +450,18 @@ def _edge_minima(P: FloatArray, rows: FloatArray, e: FloatArray, ctx: FloatArray
 
 
 @jit
-def closest_level(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                  clo: FloatArray, chi: FloatArray, target: FloatArray, ref: FloatArray, q_out: FloatArray) -> float:
+def closest_level(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    target: FloatArray,
+    ref: FloatArray,
+    q_out: FloatArray,
+) -> float:
     """The closest configuration within every limit for an arm without a wrist, with a lateral
     pivot offset py and coupled limits on the shoulder and elbow (desk4), by enumerating every
     stationary point: (error [m]), or -1 where this does not apply.
@@ -496,9 +530,21 @@ def closest_level(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArr
 
 
 @jit
-def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool, target: FloatArray,
-                ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
+def closest_box(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    weights: FloatArray,
+    exact_pitch_search: bool,
+    target: FloatArray,
+    ref: FloatArray,
+    q_out: FloatArray,
+    prune: bool,
+) -> float:
     """The closest configuration within the box limits, any tool pitch, by enumerating every
     stationary point: (error [m]), or -1 where this does not apply. ``prune`` False visits every
     candidate (the tests hold the pruned search to it).
@@ -559,7 +605,7 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     ids = np.empty(4, dtype=np.int64)
     errs = np.empty(4)
     work = np.empty((4, 5))
-    options = 4 ** nj
+    options = 4**nj
     reach = l1 + l2 + (l3 if nj == 3 else 0.0)
     # A lower bound on the error at each yaw: the target's distance from the arm's plane, and
     # its distance in the plane from the shoulder pivot less the whole reach. A yaw (and, below,
@@ -589,8 +635,26 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
             # reached exactly (a case the collinearity does not cover): ask the closed form
             if not exact_pitch_search:
                 return -1.0  # (it is complete only where no coupled limit touches a pitch joint)
-            code, m, _ = solve_one(P, J, lower, upper, weights, C, clo, chi, exact_pitch_search, ref,
-                                   tu * math.cos(psi), tu * math.sin(psi), z, FREE_PREFS, qs, ids, errs, work)
+            code, m, _ = solve_one(
+                P,
+                J,
+                lower,
+                upper,
+                weights,
+                C,
+                clo,
+                chi,
+                exact_pitch_search,
+                ref,
+                tu * math.cos(psi),
+                tu * math.sin(psi),
+                z,
+                FREE_PREFS,
+                qs,
+                ids,
+                errs,
+                work,
+            )
             if code != NONE and lateral * lateral < best - 1e-30:
                 best = lateral * lateral
                 q_out[:] = qs[0]
@@ -680,12 +744,29 @@ def closest_box(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
-@entry("Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, "
-       "f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])")
-def closest_family(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                   clo: FloatArray, chi: FloatArray, weights: FloatArray, exact_pitch_search: bool,
-                   target: FloatArray, pitch: float, w2: float, ref: FloatArray, atlas_q: FloatArray,
-                   atlas_p: FloatArray, n_atlas: int, q_out: FloatArray) -> tuple[float, float, int]:
+@entry(
+    "Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, "
+    "f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])"
+)
+def closest_family(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    weights: FloatArray,
+    exact_pitch_search: bool,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    ref: FloatArray,
+    atlas_q: FloatArray,
+    atlas_p: FloatArray,
+    n_atlas: int,
+    q_out: FloatArray,
+) -> tuple[float, float, int]:
     """The enumerated optimum where it applies (:func:`closest_box`, free pitch only); else
     the best of :func:`refine_family` from ``ref`` (if within limits) and
     the ``n_atlas`` atlas configurations whose tool points are nearest the target:

@@ -18,9 +18,24 @@ IntArray = NDArray[np.int64]
 
 
 @jit
-def configs_at(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-               clo: FloatArray, chi: FloatArray, ref: FloatArray, x: float, y: float, z: float, phi: float,
-               tol: float, qs: FloatArray, ids: IntArray, work: FloatArray) -> int:
+def configs_at(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    ref: FloatArray,
+    x: float,
+    y: float,
+    z: float,
+    phi: float,
+    tol: float,
+    qs: FloatArray,
+    ids: IntArray,
+    work: FloatArray,
+) -> int:
     """Branches at pitch ``phi`` wrapped into the limits and within every limit.
 
     Joint values come from ``ref`` for joints outside the family (the wrist roll). Writes
@@ -71,8 +86,9 @@ def rank_by_distance(qs: FloatArray, ids: IntArray, m: int, ref: FloatArray, wei
 
 
 @jit
-def formula_errors(P: FloatArray, J: IntArray, qs: FloatArray, m: int, x: float, y: float, z: float,
-                   errs: FloatArray) -> None:
+def formula_errors(
+    P: FloatArray, J: IntArray, qs: FloatArray, m: int, x: float, y: float, z: float, errs: FloatArray
+) -> None:
     """Distance [m] from each row's tool point (family formula) to the target."""
     p = np.empty(3)
     for r in range(m):

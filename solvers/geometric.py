@@ -46,8 +46,6 @@ BRANCH_NAMES = ("front/elbow_up", "front/elbow_down", "flipped/elbow_up", "flipp
 _FRONT, _FLIPPED = 0, 2  # branch id = side + (0 up | 1 down)
 
 
-
-
 @dataclass(frozen=True)
 class FamilyParams:
     """The family's numbers as the arrays the compiled functions take (read once per robot)."""
@@ -71,8 +69,9 @@ class FamilyParams:
         if g is None:
             raise ValueError(f"{robot.name} has no [geometry]: it is not of the closed-form family")
         hand = g.hand if g.wrist is not None else 0.0
-        P = np.array([g.pivot[0], g.pivot[1], g.pivot[2], g.upper_arm, g.forearm, hand,
-                      g.tool_offset[0], g.tool_offset[1]])
+        P = np.array(
+            [g.pivot[0], g.pivot[1], g.pivot[2], g.upper_arm, g.forearm, hand, g.tool_offset[0], g.tool_offset[1]]
+        )
         J = np.array([g.yaw, g.shoulder, g.elbow, -1 if g.wrist is None else g.wrist], dtype=np.int64)
         return cls(P, J, robot.nq)
 

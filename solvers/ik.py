@@ -90,8 +90,18 @@ class _Arm:
 
     def __post_init__(self) -> None:
         if self.fp is not None:
-            self.head = pack(self.fp.P, self.fp.J, self.lower, self.upper, self.weights, self.C, self.clo, self.chi,
-                             self.exact_pitch_search, self.level)
+            self.head = pack(
+                self.fp.P,
+                self.fp.J,
+                self.lower,
+                self.upper,
+                self.weights,
+                self.C,
+                self.clo,
+                self.chi,
+                self.exact_pitch_search,
+                self.level,
+            )
 
 
 _cache: dict[int, _Arm] = {}
@@ -122,10 +132,23 @@ def _arm(robot: Robot) -> _Arm:
             pitch_joints = [int(j) for j in fp.J[1:] if j >= 0]
             pitch_free = not np.any(C[:, pitch_joints]) if len(C) else True
         atlas_q = _atlas(robot)
-        arm = _Arm(robot, fp, QPRefiner(robot), lim.lower.copy(), lim.upper.copy(), 1.0 / lim.velocity, C,
-                   np.array([c.lower for c in lim.coupled]), np.array([c.upper for c in lim.coupled]),
-                   exact, pitch_free, robot.geometry is not None and robot.geometry.level, atlas_q,
-                   np.array([robot.fk(q) for q in atlas_q]), _Buffers(robot.nq))
+        arm = _Arm(
+            robot,
+            fp,
+            QPRefiner(robot),
+            lim.lower.copy(),
+            lim.upper.copy(),
+            1.0 / lim.velocity,
+            C,
+            np.array([c.lower for c in lim.coupled]),
+            np.array([c.upper for c in lim.coupled]),
+            exact,
+            pitch_free,
+            robot.geometry is not None and robot.geometry.level,
+            atlas_q,
+            np.array([robot.fk(q) for q in atlas_q]),
+            _Buffers(robot.nq),
+        )
         _cache[id(robot)] = arm
     return arm
 
@@ -197,20 +220,37 @@ def _pose(arm: _Arm, q: FloatArray) -> tuple[FloatArray, float]:
     return reached, pitch
 
 
-def _result(arm: _Arm, status: str, chosen: Branch, others: list[Branch], point: FloatArray,
-            asked_pitch: float | None, iterations: int, reason: str | None) -> IKResult:
+def _result(
+    arm: _Arm,
+    status: str,
+    chosen: Branch,
+    others: list[Branch],
+    point: FloatArray,
+    asked_pitch: float | None,
+    iterations: int,
+    reason: str | None,
+) -> IKResult:
     """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the check)."""
     reached, pitch = _pose(arm, chosen.q)
     pitch_error = None if asked_pitch is None else wrap(pitch - asked_pitch)
     return IKResult(
-        status=status, q=chosen.q, position_error=_dist(reached, point), reached=reached,
-        target=point, pitch=pitch, pitch_error=pitch_error, branch=chosen.name, branches=tuple(others),
-        iterations=iterations, reason=reason,
+        status=status,
+        q=chosen.q,
+        position_error=_dist(reached, point),
+        reached=reached,
+        target=point,
+        pitch=pitch,
+        pitch_error=pitch_error,
+        branch=chosen.name,
+        branches=tuple(others),
+        iterations=iterations,
+        reason=reason,
     )
 
 
-def _refined(arm: _Arm, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None,
-             tolerance: float) -> tuple[list[Branch], int]:
+def _refined(
+    arm: _Arm, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None, tolerance: float
+) -> tuple[list[Branch], int]:
     """Branches of an idealised ``[geometry]`` checked on the exact model and refined by the QP
     (inside the limits) where they miss; those the QP cannot bring in are dropped."""
     found: list[Branch] = []
@@ -227,8 +267,7 @@ def _refined(arm: _Arm, rows: list[tuple[str, FloatArray, float]], point: FloatA
     return found, iterations
 
 
-def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray,
-                  tolerance: float) -> IKResult:
+def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float) -> IKResult:
     fp = arm.fp
     assert fp is not None
     b = arm.buffers
@@ -243,8 +282,10 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
         status, reason = OK, None
     else:
         status = APPROXIMATE
-        reason = (f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
-                  f"the nearest reachable pitch is {phi:.4f} rad")
+        reason = (
+            f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
+            f"the nearest reachable pitch is {phi:.4f} rad"
+        )
     qs = b.qs.copy()  # (all four rows: cheaper than slicing first; rows m and on are never read)
     names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
     errs = b.errs.tolist()[:m]
@@ -254,9 +295,18 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
         reached_pitch = wrap(pitch_sum)
         others = tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
         return IKResult(  # (positional: the fields' order, status to reason)
-            status, qs[0], errs[0], b.reached.copy(), point, reached_pitch,
+            status,
+            qs[0],
+            errs[0],
+            b.reached.copy(),
+            point,
+            reached_pitch,
             None if pitch is None else wrap(reached_pitch - pitch),
-            names[0], others, 0, None if status == OK else reason)
+            names[0],
+            others,
+            0,
+            None if status == OK else reason,
+        )
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and refined by the QP where it misses
     rows = [(names[r], qs[r], errs[r]) for r in range(m)]
@@ -311,16 +361,33 @@ def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: Flo
     return None if best is None else best[1]
 
 
-def _closest(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float,
-             iterations: int) -> IKResult:
+def _closest(
+    arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, iterations: int
+) -> IKResult:
     """The configuration within limits whose tool point is nearest ``point``."""
     if arm.fp is not None and arm.exact:  # the family formula is the exact model: compiled
         fp = arm.fp
         q = np.empty(fp.n)
         w2 = _PITCH_WEIGHT**2 if (pitch is not None and fp.has_wrist) else 0.0
-        err, perr, its = closest_family(fp.P, fp.J, arm.lower, arm.upper, arm.C, arm.clo, arm.chi, arm.weights,
-                                        arm.exact_pitch_search, point, 0.0 if pitch is None else pitch, w2, ref,
-                                        arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q)
+        err, perr, its = closest_family(
+            fp.P,
+            fp.J,
+            arm.lower,
+            arm.upper,
+            arm.C,
+            arm.clo,
+            arm.chi,
+            arm.weights,
+            arm.exact_pitch_search,
+            point,
+            0.0 if pitch is None else pitch,
+            w2,
+            ref,
+            arm.atlas_q,
+            arm.atlas_p,
+            _ATLAS_STARTS,
+            q,
+        )
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     starts = []
     if arm.fp is not None:
@@ -343,15 +410,32 @@ def _closest(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray,
     return _closest_result(arm, point, pitch, chosen, best.pitch_error, iterations, tolerance)
 
 
-def _closest_result(arm: _Arm, point: FloatArray, pitch: float | None, chosen: Branch, pitch_error: float,
-                    iterations: int, tolerance: float) -> IKResult:
+def _closest_result(
+    arm: _Arm,
+    point: FloatArray,
+    pitch: float | None,
+    chosen: Branch,
+    pitch_error: float,
+    iterations: int,
+    tolerance: float,
+) -> IKResult:
     if chosen.position_error <= tolerance:
         if pitch is not None and pitch_error > PITCH_TOLERANCE:
-            return _result(arm, APPROXIMATE, chosen, [], point, pitch, iterations,
-                           "the asked pitch is not reachable at this target within the joint limits")
+            return _result(
+                arm,
+                APPROXIMATE,
+                chosen,
+                [],
+                point,
+                pitch,
+                iterations,
+                "the asked pitch is not reachable at this target within the joint limits",
+            )
         return _result(arm, OK, chosen, [], point, pitch, iterations, None)
-    reason = (f"the target is out of reach within the joint limits: the closest the tool gets is "
-              f"{chosen.position_error:.6g} m away")
+    reason = (
+        f"the target is out of reach within the joint limits: the closest the tool gets is "
+        f"{chosen.position_error:.6g} m away"
+    )
     return _result(arm, UNREACHABLE, chosen, [], point, pitch, iterations, reason)
 
 
@@ -376,8 +460,10 @@ def _solve_numerical(arm: _Arm, point: FloatArray, ref: FloatArray, tolerance: f
     chosen = Branch("numerical", best.q, best.position_error)
     if best.position_error <= tolerance:
         return _result(arm, OK, chosen, [], point, None, iterations, None)
-    reason = (f"no start reached the target within the joint limits: the closest the tool gets is "
-              f"{best.position_error:.6g} m away")
+    reason = (
+        f"no start reached the target within the joint limits: the closest the tool gets is "
+        f"{best.position_error:.6g} m away"
+    )
     return _result(arm, UNREACHABLE, chosen, [], point, None, iterations, reason)
 
 
@@ -389,8 +475,9 @@ def _quantise(arm: _Arm, result: IKResult, tolerance: float) -> IKResult:
     robot = arm.robot
     amap = robot.actuators
     if not np.allclose(np.abs(amap.M).sum(axis=1), 1.0) or not np.all(np.count_nonzero(amap.M, axis=1) == 1):
-        raise BadRequest(f"quantise needs one joint per actuator; {robot.name}'s actuator map couples joints",
-                         field="quantise")
+        raise BadRequest(
+            f"quantise needs one joint per actuator; {robot.name}'s actuator map couples joints", field="quantise"
+        )
     first = [int(np.flatnonzero(amap.M[:, j])[0]) for j in range(robot.nq)]
     grids = []
     for j, k in enumerate(first):
@@ -406,8 +493,7 @@ def _quantise(arm: _Arm, result: IKResult, tolerance: float) -> IKResult:
         if err < best_err:
             best_q, best_err = combo, err
     if best_q is None:
-        raise BadRequest("no whole-step configuration next to the answer is within the joint limits",
-                         field="quantise")
+        raise BadRequest("no whole-step configuration next to the answer is within the joint limits", field="quantise")
     amap.commands(best_q)  # every actuator inside its range, or an error
     status, reason = result.status, result.reason
     if status == OK and best_err > tolerance:

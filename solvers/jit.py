@@ -35,8 +35,17 @@ log = logging.getLogger(__name__)
 HERE = Path(__file__).resolve().parent
 # every file with compiled code, relative to solvers/; with the file that compiles them (build
 # for the native module, this one for the JIT), what a build or a cache is of
-COMPILED_MODULES = ("activeset", "analytic", "closest", "family", "geometric", "limits", "pitch",
-                    "../planning/compiled", "../robots/angles")
+COMPILED_MODULES = (
+    "activeset",
+    "analytic",
+    "closest",
+    "family",
+    "geometric",
+    "limits",
+    "pitch",
+    "../planning/compiled",
+    "../robots/angles",
+)
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -67,8 +76,10 @@ def _load_native() -> Any:
         log.info("no ahead-of-time build of the compiled code (armd.solvers._native): compiling with Numba")
         return None
     if not built_from(_native, source_digest()):
-        log.warning("armd.solvers._native was built from other sources than these: compiling with Numba "
-                    "instead (reinstall armd, pip install -e ., to rebuild it)")
+        log.warning(
+            "armd.solvers._native was built from other sources than these: compiling with Numba "
+            "instead (reinstall armd, pip install -e ., to rebuild it)"
+        )
         return None
     return _native
 
@@ -88,7 +99,8 @@ def _compiler() -> Callable[[F], F]:
 
     def cache_root() -> str:
         base = os.environ.get("ARMD_CACHE_DIR") or os.path.join(
-            os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "armd", "numba")
+            os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "armd", "numba"
+        )
         key = f"{numba.__version__} {source_digest('jit')}"
         return os.path.join(base, hashlib.sha256(key.encode()).hexdigest()[:16])
 
@@ -156,8 +168,16 @@ else:
     _LAZY: list[_Lazy] = []
     _PYTHON: dict[str, Callable[..., Any]] = {}  # an entry point's name: its Python function
     _GIVEN: dict[str, Callable[..., Any]] = {}  # ... and what @entry gave its module for it
-    _MODULES = ("armd.solvers.activeset", "armd.solvers.analytic", "armd.solvers.closest", "armd.solvers.family",
-                "armd.solvers.geometric", "armd.solvers.limits", "armd.solvers.pitch", "armd.planning.compiled")
+    _MODULES = (
+        "armd.solvers.activeset",
+        "armd.solvers.analytic",
+        "armd.solvers.closest",
+        "armd.solvers.family",
+        "armd.solvers.geometric",
+        "armd.solvers.limits",
+        "armd.solvers.pitch",
+        "armd.planning.compiled",
+    )
     _lock = threading.Lock()
 
     class _Lazy:
@@ -242,8 +262,7 @@ def _checked(native: Callable[..., Any], signature: str) -> Callable[..., Any]:
     import numpy as np
 
     spec = parse_signature(signature)
-    scalars = {"float64": (float, int, np.floating, np.integer), "int64": (int, np.integer),
-               "bool": (bool, np.bool_)}
+    scalars = {"float64": (float, int, np.floating, np.integer), "int64": (int, np.integer), "bool": (bool, np.bool_)}
 
     @functools.wraps(native)
     def call(*args: Any) -> Any:
@@ -251,14 +270,20 @@ def _checked(native: Callable[..., Any], signature: str) -> Callable[..., Any]:
             raise TypeError(f"{native.__name__}: {len(args)} arguments for {signature}")
         for i, (arg, (dtype, ndim, contiguous)) in enumerate(zip(args, spec, strict=True)):
             if ndim:
-                ok = (isinstance(arg, np.ndarray) and arg.dtype == dtype and arg.ndim == ndim
-                      and (arg.flags.c_contiguous or not contiguous))
+                ok = (
+                    isinstance(arg, np.ndarray)
+                    and arg.dtype == dtype
+                    and arg.ndim == ndim
+                    and (arg.flags.c_contiguous or not contiguous)
+                )
             else:
                 ok = isinstance(arg, scalars[dtype]) and not (dtype == "int64" and isinstance(arg, bool))
             if not ok:
                 got = f"{arg.dtype}[{arg.ndim}d]" if isinstance(arg, np.ndarray) else type(arg).__name__
-                raise TypeError(f"{native.__name__}: argument {i} is {got}; {signature} wants {dtype}"
-                                f"{f'[{ndim}d]' if ndim else ''}{' (C-contiguous)' if contiguous else ''}")
+                raise TypeError(
+                    f"{native.__name__}: argument {i} is {got}; {signature} wants {dtype}"
+                    f"{f'[{ndim}d]' if ndim else ''}{' (C-contiguous)' if contiguous else ''}"
+                )
         return native(*args)
 
     return call

@@ -9,8 +9,9 @@ from .jit import jit
 
 
 @jit
-def limits_ok(q: FloatArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray,
-              chi: FloatArray, tol: float) -> bool:
+def limits_ok(
+    q: FloatArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray, chi: FloatArray, tol: float
+) -> bool:
     """Box limits hold to ``tol`` [rad] and every coupled limit holds exactly."""
     for i in range(q.shape[0]):
         if q[i] < lower[i] - tol or q[i] > upper[i] + tol:

@@ -45,9 +45,20 @@ def _pref_key(phi: float, prefs: FloatArray) -> float:
 
 
 @jit
-def boundary_pitch(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-                   clo: FloatArray, chi: FloatArray, ref: FloatArray, x: float, y: float, z: float,
-                   prefs: FloatArray) -> tuple[bool, float]:
+def boundary_pitch(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    ref: FloatArray,
+    x: float,
+    y: float,
+    z: float,
+    prefs: FloatArray,
+) -> tuple[bool, float]:
     """The reachable pitch [rad] nearest the preferred ones, among the boundary pitches."""
     ys, sh, el, wr = J[0], J[1], J[2], J[3]
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
@@ -113,9 +124,20 @@ def boundary_pitch(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatAr
 
 
 @jit
-def grid_pitch(P: FloatArray, J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray,
-               clo: FloatArray, chi: FloatArray, ref: FloatArray, x: float, y: float, z: float,
-               prefs: FloatArray) -> tuple[bool, float]:
+def grid_pitch(
+    P: FloatArray,
+    J: IntArray,
+    lower: FloatArray,
+    upper: FloatArray,
+    C: FloatArray,
+    clo: FloatArray,
+    chi: FloatArray,
+    ref: FloatArray,
+    x: float,
+    y: float,
+    z: float,
+    prefs: FloatArray,
+) -> tuple[bool, float]:
     """The reachable pitch [rad] nearest the preferred ones: 1-degree grid, then bisection."""
     n = ref.shape[0]
     qs = np.empty((4, n))

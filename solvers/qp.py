@@ -45,8 +45,6 @@ class Refined:
     iterations: int
 
 
-
-
 class QPRefiner:
     """Constrained Gauss-Newton IK for one robot (thread-safe: it uses the robot's per-thread Data)."""
 
@@ -93,8 +91,9 @@ class QPRefiner:
             raise QPError(f"QP step failed (DAQP exit flag {exitflag})", robot=self.robot.name)
         return np.asarray(x)
 
-    def _evaluate(self, q: FloatArray, target: FloatArray, pitch: float | None, w2: float,
-                  jacobian: bool) -> tuple[float, FloatArray, float, FloatArray | None]:
+    def _evaluate(
+        self, q: FloatArray, target: FloatArray, pitch: float | None, w2: float, jacobian: bool
+    ) -> tuple[float, FloatArray, float, FloatArray | None]:
         """(cost, position error vector [m], pitch error [rad], Jacobian or None) at ``q``."""
         data = self.robot.data()
         if jacobian:

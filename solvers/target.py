@@ -96,10 +96,14 @@ def approach_pitch(robot: Robot, approach: object) -> float | None:
     geom = robot.geometry
     if geom is not None and geom.level:
         if abs(pitch) > 1e-12:
-            raise BadRequest(f"{robot.name} holds its tool level by a linkage: approach can only be "
-                             "'parallel' or 'free'", field="approach")
+            raise BadRequest(
+                f"{robot.name} holds its tool level by a linkage: approach can only be 'parallel' or 'free'",
+                field="approach",
+            )
         return None
     if geom is None or not geom.has_wrist:
-        raise BadRequest(f"{robot.name} has no wrist: its tool pitch follows from the position; "
-                         "use approach 'free'", field="approach")
+        raise BadRequest(
+            f"{robot.name} has no wrist: its tool pitch follows from the position; use approach 'free'",
+            field="approach",
+        )
     return pitch

@@ -21,8 +21,12 @@ from armd import robots
 def arm_copy(tmp_path: Path) -> Callable[..., Path]:
     """Copy catalogue arm ``name`` into tmp_path, applying (old, new) text edits to its files."""
 
-    def make(name: str, toml_edits: list[tuple[str, str]] = (), urdf_edits: list[tuple[str, str]] = (),
-             as_name: str | None = None) -> Path:
+    def make(
+        name: str,
+        toml_edits: list[tuple[str, str]] = (),
+        urdf_edits: list[tuple[str, str]] = (),
+        as_name: str | None = None,
+    ) -> Path:
         dst = tmp_path / (as_name or name)
         shutil.copytree(robots.CATALOGUE_DIR / name, dst)
         for fname, edits in (("robot.toml", toml_edits), ("robot.urdf", urdf_edits)):
@@ -109,8 +113,6 @@ def collect(client: object, key: str) -> tuple[list[dict[str, object]], object]:
             got.append(json.loads(sample.payload.to_bytes()))
 
     return got, client.session.declare_subscriber(key, on)  # type: ignore[attr-defined]
-
-
 
 
 @pytest.fixture(autouse=True)

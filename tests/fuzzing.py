@@ -27,8 +27,24 @@ ROBOT = "insomniac"
 NQ = 5
 VERBS = ["info", "fk", "ik", "plan", "move", "stop", "gripper"]
 
-_WRONG_VALUES: list[object] = ["x", "", None, True, {}, [], [[1, 2, 3]], {"a": 1}, "1.0", [None, None, None],
-                               ["a", "b", "c"], [1, 2], [1, 2, 3, 4, 5, 6, 7, 8], 1e308, -1e308, 10**30]
+_WRONG_VALUES: list[object] = [
+    "x",
+    "",
+    None,
+    True,
+    {},
+    [],
+    [[1, 2, 3]],
+    {"a": 1},
+    "1.0",
+    [None, None, None],
+    ["a", "b", "c"],
+    [1, 2],
+    [1, 2, 3, 4, 5, 6, 7, 8],
+    1e308,
+    -1e308,
+    10**30,
+]
 
 
 def _raw_bad(rng: random.Random) -> bytes:
@@ -50,7 +66,7 @@ def _raw_bad(rng: random.Random) -> bytes:
     if kind == 6:
         return b'{"q": [0, 1, -1, 0, 0], "protocol": ' + str(rng.choice([0, 2, 99, '"1"'])).encode() + b"}"
     if kind == 7:
-        return "{\"target\": [0.2, 0.0, 0.1], \"note\": \"\u00e9\"}".encode("latin-1")  # not UTF-8
+        return '{"target": [0.2, 0.0, 0.1], "note": "\u00e9"}'.encode("latin-1")  # not UTF-8
     return b'{"target": [0.2, 0.0, 0.1], "' + rng.choice([b"aproach", b"seeds", b"q", b"speedy"]) + b'": 1}'
 
 
@@ -64,16 +80,31 @@ def _verb_bad(rng: random.Random, verb: str) -> bytes:
     if verb == "fk":
         req: dict[str, object] = {"q": wrong}
     elif verb == "ik":
-        req = rng.choice([{"target": wrong}, {"target": [0.2, 0.0, 0.1], "approach": rng.choice(["up", 7.0, opt])},
-                          {"target": [0.2, 0.0, 0.1], "seed": opt}, {"target": [0.2, 0.0, 0.1], "tolerance": opt},
-                          {"targets": rng.choice(_NOT_POINTS)}, {"targets": [[0.2, 0.0, 0.1], wrong]}, {}])
+        req = rng.choice(
+            [
+                {"target": wrong},
+                {"target": [0.2, 0.0, 0.1], "approach": rng.choice(["up", 7.0, opt])},
+                {"target": [0.2, 0.0, 0.1], "seed": opt},
+                {"target": [0.2, 0.0, 0.1], "tolerance": opt},
+                {"targets": rng.choice(_NOT_POINTS)},
+                {"targets": [[0.2, 0.0, 0.1], wrong]},
+                {},
+            ]
+        )
     elif verb in ("plan", "move"):
-        req = rng.choice([{"goal": wrong}, {"goal": [0.0] * NQ, "speed": rng.choice([0, -1, 2, 1e-7, opt])},
-                          {"goal": [0.0, 1.0, -1.0, 0.0, 0.0], "speed": 0.001, "rate_hz": 1000},  # 10^6 samples
-                          {"goal": [0.0] * NQ, "path": rng.choice(["curve", opt])},
-                          {"goal": [0.0] * NQ, "rate_hz": rng.choice([0, 1e6, opt])},
-                          {"goal": [9.0] * NQ}, {"goal": {"target": wrong}}, {"goal": [0.0] * NQ, "via": opt},
-                          {}])
+        req = rng.choice(
+            [
+                {"goal": wrong},
+                {"goal": [0.0] * NQ, "speed": rng.choice([0, -1, 2, 1e-7, opt])},
+                {"goal": [0.0, 1.0, -1.0, 0.0, 0.0], "speed": 0.001, "rate_hz": 1000},  # 10^6 samples
+                {"goal": [0.0] * NQ, "path": rng.choice(["curve", opt])},
+                {"goal": [0.0] * NQ, "rate_hz": rng.choice([0, 1e6, opt])},
+                {"goal": [9.0] * NQ},
+                {"goal": {"target": wrong}},
+                {"goal": [0.0] * NQ, "via": opt},
+                {},
+            ]
+        )
     elif verb == "gripper":
         req = {"opening": rng.choice([2.0, -1.0, wrong])}
     else:  # info, stop take nothing
@@ -95,19 +126,47 @@ _NEUTRAL = [0.0, 1.5707963267948966, -1.5707963267948966, 0.0, 0.0]
 Exclusive = tuple[tuple[str | int, ...], str, Any, str]
 BASES: list[tuple[str, dict[str, Any], list[Exclusive]]] = [
     ("fk", {"q": _Q, "protocol": 1}, []),
-    ("ik", {"target": [0.25, 0.05, 0.12], "approach": "perpendicular", "seed": _Q, "tolerance": 1e-6,
-            "quantise": False}, [((), "targets", [[0.25, 0.05, 0.12]], "target")]),
-    ("ik", {"target": {"sensor": "et_left", "range": 0.1, "bearing": 0.0}},
-     [((), "targets", [[0.2, 0.0, 0.1]], "target")]),
-    ("ik", {"targets": [[0.25, 0.0, 0.2], [0.2, 0.1, 0.1]], "approach": [0.0, -0.5], "seeds": [_Q, _Q2],
-            "tolerance": 1e-6}, [((), "target", [0.25, 0.0, 0.2], "target")]),
-    ("plan", {"goal": _Q2, "start": {"position": _NEUTRAL, "velocity": [0.0] * NQ, "acceleration": [0.0] * NQ},
-              "speed": 0.5, "rate_hz": 50, "via": [_Q, {"q": _Q}]},
-     [(("via", 1), "target", [0.2, 0.0, 0.1], "via[1].q"), (("via", 1), "approach", "free", "via[1].approach")]),
-    ("plan", {"goal": {"target": [0.25, 0.05, 0.15], "approach": "free"}, "path": "line", "start": _NEUTRAL},
-     [(("goal",), "q", _Q, "goal.q")]),
-    ("move", {"goal": {"q": _Q2}, "speed": 0.5, "path": "joint"},
-     [(("goal",), "target", [0.25, 0.05, 0.15], "goal.q"), (("goal",), "approach", "free", "goal.approach")]),
+    (
+        "ik",
+        {"target": [0.25, 0.05, 0.12], "approach": "perpendicular", "seed": _Q, "tolerance": 1e-6, "quantise": False},
+        [((), "targets", [[0.25, 0.05, 0.12]], "target")],
+    ),
+    (
+        "ik",
+        {"target": {"sensor": "et_left", "range": 0.1, "bearing": 0.0}},
+        [((), "targets", [[0.2, 0.0, 0.1]], "target")],
+    ),
+    (
+        "ik",
+        {
+            "targets": [[0.25, 0.0, 0.2], [0.2, 0.1, 0.1]],
+            "approach": [0.0, -0.5],
+            "seeds": [_Q, _Q2],
+            "tolerance": 1e-6,
+        },
+        [((), "target", [0.25, 0.0, 0.2], "target")],
+    ),
+    (
+        "plan",
+        {
+            "goal": _Q2,
+            "start": {"position": _NEUTRAL, "velocity": [0.0] * NQ, "acceleration": [0.0] * NQ},
+            "speed": 0.5,
+            "rate_hz": 50,
+            "via": [_Q, {"q": _Q}],
+        },
+        [(("via", 1), "target", [0.2, 0.0, 0.1], "via[1].q"), (("via", 1), "approach", "free", "via[1].approach")],
+    ),
+    (
+        "plan",
+        {"goal": {"target": [0.25, 0.05, 0.15], "approach": "free"}, "path": "line", "start": _NEUTRAL},
+        [(("goal",), "q", _Q, "goal.q")],
+    ),
+    (
+        "move",
+        {"goal": {"q": _Q2}, "speed": 0.5, "path": "joint"},
+        [(("goal",), "target", [0.25, 0.05, 0.15], "goal.q"), (("goal",), "approach", "free", "goal.approach")],
+    ),
     ("gripper", {"opening": 0.5}, []),
     ("info", {}, []),
     ("stop", {}, []),
@@ -171,8 +230,12 @@ def mutation(choose: Choose[Any], *, tiny: bool = False) -> Mutation:
         return Mutation(f"{ROBOT}/{verb}", req, field_of(path), "tiny", tiny=True)
     words = [p for p, v in leaves if type(v) is str]
     objects = [p for p, v in leaves if isinstance(v, dict)]
-    kinds = ["unknown key"] + ["not a number", "huge"] * bool(numbers) + ["not a word"] * bool(words) \
+    kinds = (
+        ["unknown key"]
+        + ["not a number", "huge"] * bool(numbers)
+        + ["not a word"] * bool(words)
         + ["both exclusive"] * bool(exclusive)
+    )
     how = choose(kinds)
     if how == "unknown key":
         path = choose(objects)

@@ -66,12 +66,16 @@ def test_a_trajectory_is_checked_by_its_motion_not_by_what_it_declares(sim: Any)
     assert np.allclose(adapter.position, arm.neutral)  # nothing moved
 
 
-@pytest.mark.parametrize(("change", "says"), [
-    ({"rate_hz": 1e-6}, "rate_hz must be a number in [1, 1000]"),
-    ({"rate_hz": 5000}, "rate_hz must be a number in [1, 1000]"),
-    ({"id": ""}, "needs an 'id'"),
-    ({"kind": "dance"}, "kind must be one of"),
-], ids=["slow rate", "fast rate", "no id", "bad kind"])
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        ({"rate_hz": 1e-6}, "rate_hz must be a number in [1, 1000]"),
+        ({"rate_hz": 5000}, "rate_hz must be a number in [1, 1000]"),
+        ({"id": ""}, "needs an 'id'"),
+        ({"kind": "dance"}, "kind must be one of"),
+    ],
+    ids=["slow rate", "fast rate", "no id", "bad kind"],
+)
 def test_malformed_trajectories_are_refused(sim: Any, change: dict[str, Any], says: str) -> None:
     adapter, session, events = sim
     arm = adapter.robot
@@ -98,8 +102,17 @@ def test_a_trajectory_must_start_where_the_arm_is(sim: Any) -> None:
     put(session, message(planning.plan(arm, elsewhere, [0.3, 1.2, -1.0, -0.5, 0.0])))
     reason = rejection(events)[-1]
     assert "starts" in reason and "planned from another state" in reason
-    put(session, message(planning.plan(arm, arm.neutral, arm.neutral), ident="one-sample",
-                         position=[elsewhere.tolist()], times=[0.0], velocity=[[0] * 5], acceleration=[[0] * 5]))
+    put(
+        session,
+        message(
+            planning.plan(arm, arm.neutral, arm.neutral),
+            ident="one-sample",
+            position=[elsewhere.tolist()],
+            times=[0.0],
+            velocity=[[0] * 5],
+            acceleration=[[0] * 5],
+        ),
+    )
     assert "starts" in rejection(events, 2)[-1]  # (a single far sample: the jump the issue saw at 1561 rad/s)
     assert np.allclose(adapter.position, arm.neutral)
 
@@ -131,8 +144,11 @@ def test_estop_needs_no_service_and_brakes_from_the_adapters_own_state(router: s
     with ArmClient(router, prefix="t") as c:  # no service on prefix t: the estop goes to the adapter
         acks = c.estop(ARM, wait=0.5)
     assert len(acks) == 1 and acks[0]["adapter"] == adapter.id
-    wait_for(lambda: any(e["event"] == "done" and e.get("id") == acks[0]["id"] for e in events), timeout=5,
-             what="the stop done")
+    wait_for(
+        lambda: any(e["event"] == "done" and e.get("id") == acks[0]["id"] for e in events),
+        timeout=5,
+        what="the stop done",
+    )
     assert any(e["event"] == "aborted" and e.get("id") == "far" for e in events)
     here = adapter.position.copy()
     assert np.max(np.abs(here - goal)) > 0.1  # stopped short of the goal
@@ -146,8 +162,11 @@ def test_an_estop_that_is_not_json_still_stops(sim: Any) -> None:
     put(session, message(planning.plan(arm, arm.neutral, [1.2, 2.0, -1.8, 1.0, 1.0]), "far"))
     wait_for(lambda: any(e["event"] == "started" for e in events), timeout=5, what="the move")
     session.put(f"t/{ARM}/estop", b"\xff not json")
-    wait_for(lambda: any(e["event"] == "aborted" and e.get("id") == "far" for e in events), timeout=5,
-             what="the move aborted")
+    wait_for(
+        lambda: any(e["event"] == "aborted" and e.get("id") == "far" for e in events),
+        timeout=5,
+        what="the move aborted",
+    )
 
 
 def test_a_stop_trajectory_from_anyone_is_the_adapters_own_stop(sim: Any) -> None:
@@ -157,8 +176,9 @@ def test_a_stop_trajectory_from_anyone_is_the_adapters_own_stop(sim: Any) -> Non
     arm = adapter.robot
     swing = planning.plan(arm, arm.neutral, [0.6, 1.2, -1.0, -0.5, 0.0])
     put(session, message(swing, "stop-swing", kind="stop"))
-    wait_for(lambda: any(e["event"] == "done" and e.get("id") == "stop-swing" for e in events), timeout=5,
-             what="the stop")
+    wait_for(
+        lambda: any(e["event"] == "done" and e.get("id") == "stop-swing" for e in events), timeout=5, what="the stop"
+    )
     assert np.allclose(adapter.position, arm.neutral)  # at rest, it stays
 
 
@@ -186,6 +206,9 @@ def test_an_adapter_finishes_what_it_accepted_when_the_service_dies(router: str,
     finally:
         service.close()
         service_session.close()  # mid-move: the service is gone
-    wait_for(lambda: any(e["event"] == "done" and e.get("id") == r.id for e in events), timeout=r.duration + 5,
-             what="the move done")
+    wait_for(
+        lambda: any(e["event"] == "done" and e.get("id") == r.id for e in events),
+        timeout=r.duration + 5,
+        what="the move done",
+    )
     assert np.allclose(adapter.position, goal, atol=1e-9)

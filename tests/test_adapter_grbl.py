@@ -52,8 +52,9 @@ class Writes:
 
 
 @contextmanager
-def running(service: object, session: zenoh.Session, emu: GrblEmulator, arm: robots.Robot | None = None,
-            **kwargs: Any) -> Iterator[GrblAdapter]:
+def running(
+    service: object, session: zenoh.Session, emu: GrblEmulator, arm: robots.Robot | None = None, **kwargs: Any
+) -> Iterator[GrblAdapter]:
     adapter = GrblAdapter(session, arm or robots.load(ARM), emu.port, **kwargs)
     try:
         wait_for(lambda: service._adapter_count(adapter.robot) == 1, what="the adapter's token")  # type: ignore[attr-defined]
@@ -66,8 +67,9 @@ def wait_state(client: ArmClient, **want: object) -> None:
     wait_for(lambda: all(client.state(ARM).get(k) == v for k, v in want.items()), what=f"the state {want}")
 
 
-def test_move_refused_until_an_operator_says_where_the_arm_is(client: ArmClient, service: object,
-                                                              adapter_session: zenoh.Session) -> None:
+def test_move_refused_until_an_operator_says_where_the_arm_is(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     with GrblEmulator() as emu, running(service, adapter_session, emu) as adapter:
         writes = Writes(adapter)
@@ -100,8 +102,9 @@ def test_move_refused_until_an_operator_says_where_the_arm_is(client: ArmClient,
         assert moves and all(ln.startswith("G53G1") for ln in moves)  # machine coordinates, every line
 
 
-def test_assume_rest_at_start_and_a_rest_pose_of_its_own(client: ArmClient, service: object, arm_copy: Any,
-                                                         adapter_session: zenoh.Session) -> None:
+def test_assume_rest_at_start_and_a_rest_pose_of_its_own(
+    client: ArmClient, service: object, arm_copy: Any, adapter_session: zenoh.Session
+) -> None:
     folder = arm_copy(ARM, toml_edits=[("baud = 115200", 'baud = 115200\nrest_pose = [0.1, "pi/2", -1.0]')])
     with GrblEmulator() as emu:
         adapter = GrblAdapter(adapter_session, robots.load_folder(folder), emu.port, assume_rest=True)
@@ -120,8 +123,9 @@ def test_assume_rest_at_start_and_a_rest_pose_of_its_own(client: ArmClient, serv
         assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
 
 
-def test_a_stored_work_offset_does_not_shift_the_arm(client: ArmClient, service: object,
-                                                      adapter_session: zenoh.Session) -> None:
+def test_a_stored_work_offset_does_not_shift_the_arm(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     kwargs: dict[str, Any] = {"offsets": {"G54": {"X": 10.0, "Y": -20.0, "Z": 5.0}}}
     with GrblEmulator(**kwargs) as emu, running(service, adapter_session, emu, assume_rest=True):
@@ -132,13 +136,16 @@ def test_a_stored_work_offset_does_not_shift_the_arm(client: ArmClient, service:
         wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
         assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
         physical = emu_any.physical()
-        want = (actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral)) / [a.steps_per_degree  # type: ignore[union-attr]
-                                                                                 for a in arm.actuators.actuators]
+        want = (actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral)) / [
+            a.steps_per_degree  # type: ignore[union-attr]
+            for a in arm.actuators.actuators
+        ]
         assert np.allclose([physical[a.axis] for a in arm.actuators.actuators], want, atol=1e-6)  # type: ignore[union-attr]
 
 
-def test_status_mask_is_set_and_a_board_that_refuses_it_is_not_driven(client: ArmClient, service: object,
-                                                                       adapter_session: zenoh.Session) -> None:
+def test_status_mask_is_set_and_a_board_that_refuses_it_is_not_driven(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     with GrblEmulator() as emu:
         emu.settings[10] = 0  # reports WPos, as a board configured by someone else may
         emu.settings[11] = 0.5
@@ -169,8 +176,9 @@ def test_a_board_that_does_not_answer_names_the_port(adapter_session: zenoh.Sess
             GrblAdapter(adapter_session, robots.load(ARM), emu.port)
 
 
-def test_error_aborts_with_its_meaning_and_keeps_the_position(client: ArmClient, service: object,
-                                                              adapter_session: zenoh.Session) -> None:
+def test_error_aborts_with_its_meaning_and_keeps_the_position(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True) as adapter:
         events, sub = collect(client, f"armd/{ARM}/events")
         emu.inject_error_on_next_line(20)
@@ -184,8 +192,9 @@ def test_error_aborts_with_its_meaning_and_keeps_the_position(client: ArmClient,
         sub.undeclare()  # type: ignore[attr-defined]
 
 
-def test_alarm_mid_move_faults_and_waits_for_an_operator(client: ArmClient, service: object,
-                                                         adapter_session: zenoh.Session) -> None:
+def test_alarm_mid_move_faults_and_waits_for_an_operator(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True, check_period=0.2) as adapter:
         writes = Writes(adapter)
@@ -193,8 +202,11 @@ def test_alarm_mid_move_faults_and_waits_for_an_operator(client: ArmClient, serv
         client.move(ARM, [0.8, 1.3, -1.1], speed=0.5)
         time.sleep(0.5)
         emu.inject_alarm(1)  # a hard limit: ALARM:1
-        wait_for(lambda: any(e["event"] == "fault" and "ALARM:1 (Hard limit" in str(e.get("reason")) for e in events),
-                 timeout=5, what="the alarm reported with its meaning")
+        wait_for(
+            lambda: any(e["event"] == "fault" and "ALARM:1 (Hard limit" in str(e.get("reason")) for e in events),
+            timeout=5,
+            what="the alarm reported with its meaning",
+        )
         assert any(e["event"] == "aborted" and "ALARM:1" in str(e.get("reason")) for e in events)
         wait_state(client, homed=False)
         time.sleep(0.5)  # some check periods: the adapter must not clear the alarm by itself
@@ -244,8 +256,9 @@ class Poller:
         return np.array([t for t, _ in self.samples]), np.array([s for _, s in self.samples])
 
 
-def test_stop_mid_move_decelerates_along_the_path_in_time(client: ArmClient, service: object,
-                                                          adapter_session: zenoh.Session) -> None:
+def test_stop_mid_move_decelerates_along_the_path_in_time(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True) as adapter:
         writes = Writes(adapter)
@@ -267,8 +280,7 @@ def test_stop_mid_move_decelerates_along_the_path_in_time(client: ArmClient, ser
         assert not any(e["event"] == "fault" for e in events)  # the flush raised no alarm
         assert planned > 0.2  # it was moving fast: a real stop
         took = float(done["time"]) - asked
-        print(f"\nstop: planned {planned:.3f} s, done {took:.3f} s after the request "
-              f"({took / planned:.3f}x planned)")
+        print(f"\nstop: planned {planned:.3f} s, done {took:.3f} s after the request ({took / planned:.3f}x planned)")
         assert took <= 1.25 * planned + 0.1, (took, planned)
         # the arm's own motion, exactly: no axis ever reverses during the stop
         tt, pp = grbl_motion(arm, emu)
@@ -288,41 +300,52 @@ def test_stop_mid_move_decelerates_along_the_path_in_time(client: ArmClient, ser
         assert np.array_equal(during[-1], during[-30])  # at rest at the end
         moved = np.abs(during[-1] - during[0])
         assert np.any(moved > 0)  # it decelerated (a stop is not a jump to a halt)
-        assert np.max(np.abs(arm.actuators.joints_from_commands(during[-1] + actuator_steps(arm, arm.neutral))
-                             - goal)) > 0.1  # halted short of the goal
+        assert (
+            np.max(np.abs(arm.actuators.joints_from_commands(during[-1] + actuator_steps(arm, arm.neutral)) - goal))
+            > 0.1
+        )  # halted short of the goal
         assert b"!" in writes.data and emu.overflows == 0
         wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle (its hold flushed)")
         sub.undeclare()  # type: ignore[attr-defined]
 
 
-def test_a_new_move_while_moving_stops_first(client: ArmClient, service: object,
-                                             adapter_session: zenoh.Session) -> None:
+def test_a_new_move_while_moving_stops_first(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True):
         events, sub = collect(client, f"armd/{ARM}/events")
         client.move(ARM, [1.2, 0.6, -2.2])
         time.sleep(1.0)
         second = client.move(ARM, [0.0, 1.5, -1.5])  # planned from the moving state: the arm is held elsewhere
-        wait_for(lambda: any(e["event"] in ("rejected", "done") and e.get("id") == second.id for e in events),
-                 timeout=10, what="the second move's outcome")
+        wait_for(
+            lambda: any(e["event"] in ("rejected", "done") and e.get("id") == second.id for e in events),
+            timeout=10,
+            what="the second move's outcome",
+        )
         outcome = next(e for e in events if e["event"] in ("rejected", "done") and e.get("id") == second.id)
         assert outcome["event"] == "rejected" and "plan it again" in str(outcome["reason"])
         wait_state(client, moving=False)
         third = client.move(ARM, [0.0, 1.5, -1.5], wait=True, wait_timeout=20)  # from rest: runs
         wait_for(lambda: any(e["event"] == "done" and e.get("id") == third.id for e in events), what="done")
         wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
-        assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, [0.0, 1.5, -1.5])
-                              - actuator_steps(arm, arm.neutral))
+        assert np.array_equal(
+            grbl_steps(arm, emu), actuator_steps(arm, [0.0, 1.5, -1.5]) - actuator_steps(arm, arm.neutral)
+        )
         # slowly: held within START_TOL of where the new move starts, so it runs once GRBL is held
         client.move(ARM, [0.3, 1.3, -1.3], speed=0.05)
         time.sleep(1.0)
         fourth = client.move(ARM, [-0.2, 1.6, -1.6])
-        wait_for(lambda: any(e["event"] in ("rejected", "done") and e.get("id") == fourth.id for e in events),
-                 timeout=20, what="the fourth move's outcome")
+        wait_for(
+            lambda: any(e["event"] in ("rejected", "done") and e.get("id") == fourth.id for e in events),
+            timeout=20,
+            what="the fourth move's outcome",
+        )
         assert any(e["event"] == "done" and e.get("id") == fourth.id for e in events), events[-3:]
         wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
-        assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, [-0.2, 1.6, -1.6])
-                              - actuator_steps(arm, arm.neutral))
+        assert np.array_equal(
+            grbl_steps(arm, emu), actuator_steps(arm, [-0.2, 1.6, -1.6]) - actuator_steps(arm, arm.neutral)
+        )
         sub.undeclare()  # type: ignore[attr-defined]
 
 
@@ -349,14 +372,16 @@ def test_silence_withdraws_the_token(service: object, adapter_session: zenoh.Ses
 
 
 @pytest.mark.parametrize("rate_hz", [50.0, 200.0])
-def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, service: object, arm_copy: Any,
-                                                          adapter_session: zenoh.Session, rate_hz: float) -> None:
+def test_grbl_executes_the_plan_in_time_within_the_limits(
+    client: ArmClient, service: object, arm_copy: Any, adapter_session: zenoh.Session, rate_hz: float
+) -> None:
     """A 2 s move: GRBL's own planner (junctions, trapezoids, 15 blocks) takes at most 1.10 x the
     planned time + 0.05 s and accelerates no axis beyond 1.25 x its limit. The arm here has 256
     micro-steps (gupta3's limits, 16 x finer steps), so that a 40 ms fit of the trace measures the
     motion, not its steps (a step over a 40 ms window is 0.4 x the limit at 16 micro-steps)."""
-    folder = arm_copy(ARM, toml_edits=[("microsteps = 16 ", "microsteps = 256 ")]
-                      + [("microsteps = 16\n", "microsteps = 256\n")] * 2)
+    folder = arm_copy(
+        ARM, toml_edits=[("microsteps = 16 ", "microsteps = 256 ")] + [("microsteps = 16\n", "microsteps = 256\n")] * 2
+    )
     arm = robots.load_folder(folder)
     with GrblEmulator() as emu, running(service, adapter_session, emu, arm, assume_rest=True):
         wait_state(client, source="adapter", homed=True)
@@ -376,25 +401,37 @@ def test_grbl_executes_the_plan_in_time_within_the_limits(client: ArmClient, ser
         ideal = np.column_stack([np.interp(fine, plan.times, c) for c in angles.T])
         spd = np.array([a.steps_per_degree for a in arm.actuators.actuators])  # type: ignore[union-attr]
         floor = {w: fitted_peaks(fine, np.rint(ideal * spd) / spd, w)[1] / amax for w in peaks}
-        print(f"\n{rate_hz:g} Hz: planned {reply.duration:.3f} s, executed {executed:.3f} s "
-              f"({executed / reply.duration:.3f}x); peak acceleration / limit per axis, fitted over "
-              + "; ".join(f"{w * 1000:g} ms: {np.round(r, 3).tolist()} (the plan, stepped: "
-                          f"{np.round(floor[w], 3).tolist()})" for w, r in peaks.items()))
+        print(
+            f"\n{rate_hz:g} Hz: planned {reply.duration:.3f} s, executed {executed:.3f} s "
+            f"({executed / reply.duration:.3f}x); peak acceleration / limit per axis, fitted over "
+            + "; ".join(
+                f"{w * 1000:g} ms: {np.round(r, 3).tolist()} (the plan, stepped: {np.round(floor[w], 3).tolist()})"
+                for w, r in peaks.items()
+            )
+        )
         assert 1.5 <= reply.duration <= 2.5
         assert executed <= 1.10 * reply.duration + 0.05
         assert np.all(peaks[0.04] <= 1.25)
         assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, goal) - actuator_steps(arm, arm.neutral))
 
 
-def test_homing_sets_the_position_from_home_pose(client: ArmClient, adapter_session: zenoh.Session,
-                                                 arm_copy: Any, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_homing_sets_the_position_from_home_pose(
+    client: ArmClient, adapter_session: zenoh.Session, arm_copy: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """An arm with switches ([controller] homing = true, home_pose): ``$H``, then exact moves. GRBL
     homes toward + (``$23=0``) and sets its position to ``-$27`` (the pull-off) there."""
     base = robots.load(ARM)
     switches = {"X": 20.0, "Y": 15.0, "Z": 25.0}  # [deg] from where the arm stands at power-up (its neutral)
     home = np.array(base.neutral) + np.radians([switches[a] - 1.0 for a in "XYZ"])
-    folder = arm_copy(ARM, toml_edits=[("baud = 115200", "baud = 115200\nhoming = true\nhome_pose = ["
-                                        + ", ".join(f"{v!r}" for v in home.tolist()) + "]")])
+    folder = arm_copy(
+        ARM,
+        toml_edits=[
+            (
+                "baud = 115200",
+                "baud = 115200\nhoming = true\nhome_pose = [" + ", ".join(f"{v!r}" for v in home.tolist()) + "]",
+            )
+        ],
+    )
     arm = robots.load_folder(folder)
     with GrblEmulator(home_switches=switches, settings={24: 300.0, 25: 1500.0, 27: 1.0}) as emu:  # type: ignore[call-arg]
         adapter = GrblAdapter(adapter_session, arm, emu.port, home=True)

@@ -80,17 +80,25 @@ def test_ssc32_controller_stops_answering(client: ArmClient, service: object, ad
             adapter.close()
 
 
-def test_a_trajectory_with_one_bad_sample_is_rejected_whole(client: ArmClient, service: object,
-                                                            adapter_session: zenoh.Session) -> None:
+def test_a_trajectory_with_one_bad_sample_is_rejected_whole(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load("insomniac")
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port)
         try:
             wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
             traj = client.plan("insomniac", [0.3, 1.2, -1.0, -0.5, 0.0], start=arm.neutral)
-            msg = {"robot": "insomniac", "id": "bad", "kind": "move", "rate_hz": traj.rate_hz,
-                   "times": traj.times.tolist(), "position": traj.position.tolist(),
-                   "velocity": traj.velocity.tolist(), "acceleration": traj.acceleration.tolist()}
+            msg = {
+                "robot": "insomniac",
+                "id": "bad",
+                "kind": "move",
+                "rate_hz": traj.rate_hz,
+                "times": traj.times.tolist(),
+                "position": traj.position.tolist(),
+                "velocity": traj.velocity.tolist(),
+                "acceleration": traj.acceleration.tolist(),
+            }
             msg["position"][len(traj.times) // 2][0] = 2.0  # base_yaw past its +pi/2 limit, one sample
             events, sub = collect(client, "armd/insomniac/events")
             before = len(emu.history)
@@ -117,8 +125,11 @@ def test_stop_mid_move_halts(client: ArmClient, service: object, adapter_session
             time.sleep(0.5)
             asked = time.time()
             stopped = client.stop("insomniac")
-            wait_for(lambda: any(e["event"] == "started" and e.get("id") == stopped["id"] for e in events),
-                     timeout=2, what="the stop started")
+            wait_for(
+                lambda: any(e["event"] == "started" and e.get("id") == stopped["id"] for e in events),
+                timeout=2,
+                what="the stop started",
+            )
             started = next(e for e in events if e["event"] == "started" and e.get("id") == stopped["id"])
             assert float(started["time"]) - asked < 0.1  # the adapter switched to the stop within a few cycles
             sub.undeclare()  # type: ignore[attr-defined]
@@ -150,10 +161,9 @@ def test_adapter_killed_mid_move_then_no_adapter(client: ArmClient, service: obj
         adapter.shutdown()
 
 
-
-
-def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(client: ArmClient, service: object,
-                                                          adapter_session: zenoh.Session) -> None:
+def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load("sg5ut")
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port)
@@ -226,9 +236,26 @@ def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subp
     """``armd adapter ssc32 insomniac`` as a user runs it: a process of its own, its log in
     ``tmp_path`` (a pipe nobody reads would stall it once full), its kept pose there too."""
     env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-    return subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", "ssc32", "insomniac", "--port",
-                             port, "--connect", router, *extra], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
-                            stderr=(tmp_path / "adapter.log").open("w"), text=True)
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "armd.cli",
+            "adapter",
+            "ssc32",
+            "insomniac",
+            "--port",
+            port,
+            "--connect",
+            router,
+            *extra,
+        ],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=(tmp_path / "adapter.log").open("w"),
+        text=True,
+    )
 
 
 def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
@@ -238,8 +265,9 @@ def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
     return m
 
 
-def _check_promise(arm: robots.Robot, m: Motion, period: float, planned: float, goal: list[float],
-                   slack: float = 0.15) -> None:
+def _check_promise(
+    arm: robots.Robot, m: Motion, period: float, planned: float, goal: list[float], slack: float = 0.15
+) -> None:
     r = ratios(arm, m, period)
     assert m.jumps == 0
     assert r.outside <= 1e-9, r
@@ -250,10 +278,14 @@ def _check_promise(arm: robots.Robot, m: Motion, period: float, planned: float, 
     assert np.max(np.abs(m.position[-1] - np.array(goal))) < 3e-3  # at the goal (within the pulses' rounding)
 
 
-@pytest.mark.parametrize(("baud", "query_delay"), [(115200, 1e-4), (115200, 0.15), (9600, 1e-4)],
-                         ids=["quiet", "slow board", "factory 9600 baud"])
-def test_a_move_keeps_every_limit_at_the_board(router: str, client: ArmClient, service: object, tmp_path: Path,
-                                               baud: int, query_delay: float) -> None:
+@pytest.mark.parametrize(
+    ("baud", "query_delay"),
+    [(115200, 1e-4), (115200, 0.15), (9600, 1e-4)],
+    ids=["quiet", "slow board", "factory 9600 baud"],
+)
+def test_a_move_keeps_every_limit_at_the_board(
+    router: str, client: ArmClient, service: object, tmp_path: Path, baud: int, query_delay: float
+) -> None:
     """What the board outputs (its own interpolation, exactly) moves every joint within its
     limits, and arrives: at 9600 baud the stream is thinned to what the link carries, and a
     board that answers QP in 150 ms neither slows the stream nor faults. The adapter runs as a
@@ -281,8 +313,9 @@ def test_a_move_keeps_every_limit_at_the_board(router: str, client: ArmClient, s
             proc.wait(10)
 
 
-def test_the_adapters_own_model_keeps_the_limits(client: ArmClient, service: object,
-                                                 adapter_session: zenoh.Session) -> None:
+def test_the_adapters_own_model_keeps_the_limits(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     """The group moves as the adapter timed them (before the pulses' rounding): every change of
     speed within the acceleration limits, every speed within the velocity limits."""
     arm = robots.load("insomniac")
@@ -297,14 +330,17 @@ def test_the_adapters_own_model_keeps_the_limits(client: ArmClient, service: obj
             adapter.close()
 
 
-def test_busy_processes_do_not_break_the_promise(client: ArmClient, service: object,
-                                                 adapter_session: zenoh.Session) -> None:
+def test_busy_processes_do_not_break_the_promise(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     """Two processes spinning beside the adapter (on a 2-core machine): late ticks re-time the
     stream, never speed it up. The board is an emulator in a process of its own (a board has its
     own CPU: in this interpreter it would stamp each command when its thread gets to run, late)."""
     arm = robots.load("insomniac")
-    burn = [subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+20\nwhile time.time()<t: pass"])
-            for _ in range(2)]
+    burn = [
+        subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+20\nwhile time.time()<t: pass"])
+        for _ in range(2)
+    ]
     try:
         with EmulatorProcess(SSC32Emulator) as emu:
             adapter = SSC32Adapter(adapter_session, arm, emu.port)
@@ -333,8 +369,9 @@ def test_busy_processes_do_not_break_the_promise(client: ArmClient, service: obj
             p.wait()
 
 
-def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmClient, service: object,
-                                                       tmp_path: Path) -> None:
+def test_a_stalled_adapter_never_catches_up_by_jumping(
+    router: str, client: ArmClient, service: object, tmp_path: Path
+) -> None:
     """The adapter's process stopped (SIGSTOP) for 1.5 s mid-move: the board finishes the move in
     hand and holds; when the adapter runs again it ramps up from rest within the limits and
     finishes the trajectory later: never faster than the limits."""
@@ -363,19 +400,23 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(router: str, client: ArmC
             assert m.jumps == 0
             # the stall: the board finished its move in hand (within the lead and a period) and held there:
             # the one stop at speed an SSC-32 move cannot soften (docs/adapters.md)
-            at = [np.array([np.interp(t, m.times, m.position[:, j]) for j in range(arm.nq)])
-                  for t in (stalled + 0.15, stalled + 1.0)]
+            at = [
+                np.array([np.interp(t, m.times, m.position[:, j]) for j in range(arm.nq)])
+                for t in (stalled + 0.15, stalled + 1.0)
+            ]
             assert np.allclose(at[0], at[1], atol=1e-9)  # held, while the adapter was stopped
             v = np.diff(m.position, axis=0) / np.maximum(np.diff(m.times), 1e-9)[:, None]
-            assert np.all(np.abs(v[(m.times[:-1] >= stalled) & (m.times[1:] <= stalled + 1.5)])
-                          <= arm.limits.velocity * SPEED_BAR)
+            assert np.all(
+                np.abs(v[(m.times[:-1] >= stalled) & (m.times[1:] <= stalled + 1.5)]) <= arm.limits.velocity * SPEED_BAR
+            )
         finally:
             proc.terminate()
             proc.wait(timeout=10)
 
 
 def test_a_restarted_adapter_adopts_the_board_and_a_powered_board_gets_the_last_pose(
-        client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load("insomniac")
     q1 = np.array([0.4, 1.3, -1.2, -0.3, 0.2])
     with SSC32Emulator() as emu:
@@ -402,8 +443,9 @@ def test_a_restarted_adapter_adopts_the_board_and_a_powered_board_gets_the_last_
             adapter.close()
 
 
-def test_a_board_that_disagrees_with_the_adapter_is_a_fault(client: ArmClient, service: object,
-                                                            adapter_session: zenoh.Session) -> None:
+def test_a_board_that_disagrees_with_the_adapter_is_a_fault(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load("sg5ut")
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port, query_period=0.1)
@@ -420,8 +462,9 @@ def test_a_board_that_disagrees_with_the_adapter_is_a_fault(client: ArmClient, s
             adapter.close()
 
 
-def test_a_link_too_slow_for_the_trajectory_is_refused_before_any_pulse(client: ArmClient, service: object,
-                                                                        adapter_session: zenoh.Session) -> None:
+def test_a_link_too_slow_for_the_trajectory_is_refused_before_any_pulse(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load("insomniac")
     with SSC32Emulator(baud=1200) as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port, baud=1200, timeout=1.0)

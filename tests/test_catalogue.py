@@ -23,9 +23,12 @@ def test_load_is_cached_and_unknown_names_list_the_catalogue() -> None:
 
 def test_user_folder_adds_an_arm_with_data_only(arm_copy: Callable[..., Path], tmp_path: Path) -> None:
     # a user's own arm: the gupta3 with longer links, under a new name, in a folder of arms
-    arm_copy("gupta3", as_name="longarm",
-             toml_edits=[("upper_arm = 0.150", "upper_arm = 0.200")],
-             urdf_edits=[('<origin xyz="0.150 0 0"', '<origin xyz="0.200 0 0"')])
+    arm_copy(
+        "gupta3",
+        as_name="longarm",
+        toml_edits=[("upper_arm = 0.150", "upper_arm = 0.200")],
+        urdf_edits=[('<origin xyz="0.150 0 0"', '<origin xyz="0.200 0 0"')],
+    )
     arms = robots.load_dir(tmp_path)
     assert list(arms) == ["longarm"]
     arm = arms["longarm"]
@@ -43,16 +46,31 @@ def test_load_dir_errors(tmp_path: Path) -> None:
 
 BAD_TOML = [
     # (arm, old, new, field the error must name, words in the problem)
-    ("gupta3", "[joints.elbow]\nacceleration = 3.0", "[joints.elbow]\nacceleraton = 3.0", "joints.elbow.acceleration",
-     "is required (found 'acceleraton': a misspelling?)"),
+    (
+        "gupta3",
+        "[joints.elbow]\nacceleration = 3.0",
+        "[joints.elbow]\nacceleraton = 3.0",
+        "joints.elbow.acceleration",
+        "is required (found 'acceleraton': a misspelling?)",
+    ),
     ("gupta3", "jerk = 20.0\n", "jerk = 20.0\nspeed = 3\n", "joints.base_yaw.speed", "unknown key"),
     ("gupta3", "[joints.elbow]\nacceleration = 3.0\njerk = 20.0\n", "", "joints.elbow", "is required"),
     ("gupta3", "jerk = 15.0", "jerk = -15.0", "joints.shoulder.jerk", "positive"),
     ("gupta3", "jerk = 15.0", 'jerk = "fast"', "joints.shoulder.jerk", "number"),
-    ("gupta3", 'joints = ["base_yaw", "shoulder", "elbow"]', 'joints = ["base_yaw", "shoulder", "knee"]',
-     "robot.joints", "no movable joint 'knee'"),
-    ("gupta3", 'joints = ["base_yaw", "shoulder", "elbow"]', 'joints = ["shoulder", "base_yaw", "elbow"]',
-     "robot.joints", "chain order"),
+    (
+        "gupta3",
+        'joints = ["base_yaw", "shoulder", "elbow"]',
+        'joints = ["base_yaw", "shoulder", "knee"]',
+        "robot.joints",
+        "no movable joint 'knee'",
+    ),
+    (
+        "gupta3",
+        'joints = ["base_yaw", "shoulder", "elbow"]',
+        'joints = ["shoulder", "base_yaw", "elbow"]',
+        "robot.joints",
+        "chain order",
+    ),
     ("gupta3", 'neutral = [0.0, "pi/2", "-pi/2"]', "neutral = [0.0, 0.5, 0.5]", "robot.neutral", "elbow"),
     ("gupta3", 'neutral = [0.0, "pi/2", "-pi/2"]', "neutral = [0.0, 0.5]", "robot.neutral", "list of 3"),
     ("gupta3", 'neutral = [0.0, "pi/2", "-pi/2"]', 'neutral = [0.0, "pie/2", 0.0]', "robot.neutral[1]", "pi/2"),
@@ -61,22 +79,36 @@ BAD_TOML = [
     ("gupta3", "upper_arm = 0.150", "upper_arm = 0.500", "geometry", "does not describe the URDF"),
     ("gupta3", 'elbow = "elbow"\npivot', 'elbow = "shoulder"\npivot', "geometry", "different joints"),
     ("gupta3", 'axis = "Y"', 'axis = "X"', "actuators[1].axis", "already used"),
-    ("gupta3", 'joints = { elbow = 1.0 }', 'joints = { shoulder = 2.0 }', "actuators", "rank"),
+    ("gupta3", "joints = { elbow = 1.0 }", "joints = { shoulder = 2.0 }", "actuators", "rank"),
     ("gupta3", 'type = "stepper"', 'type = "hydraulic"', "actuators[0].type", "'servo' or 'stepper'"),
-    ("gupta3", 'joints = { base_yaw = 1.0 }', 'joints = { turret = 1.0 }', "actuators[0].joints.turret",
-     "not a joint"),
+    ("gupta3", "joints = { base_yaw = 1.0 }", "joints = { turret = 1.0 }", "actuators[0].joints.turret", "not a joint"),
     ("insomniac", "channel = 3", "channel = 2", "actuators[3].channel", "already used"),
-    ("insomniac", 'centre_pulse = 1500.0\ncentre_angle = "-pi/2"', 'centre_pulse = 1900.0\ncentre_angle = "-pi/2"',
-     "actuators[2]", "outside its pulse range"),
+    (
+        "insomniac",
+        'centre_pulse = 1500.0\ncentre_angle = "-pi/2"',
+        'centre_pulse = 1900.0\ncentre_angle = "-pi/2"',
+        "actuators[2]",
+        "outside its pulse range",
+    ),
     ("insomniac", "direction = -1", "direction = 0", "actuators[2].direction", "1 or -1"),
     ("insomniac", 'mount = "frame"', 'mount = "wall"', "sensors[2].mount", "'scanner' or 'frame'"),
     ("insomniac", 'frame = "tool" ', 'frame = "nose" ', "sensors[2].frame", "no frame"),
     ("insomniac", "range = [0.04, 0.30]", "range = [0.30, 0.04]", "sensors[2].range", "min < max"),
     ("insomniac", "[gripper]\nchannel = 5", "[gripper]\nchannel = 4", "gripper.channel", "already used"),
-    ("desk4", "coefficients = { major = 1.0, minor = 1.0 }", "coefficients = { major = 1.0, wrist = 1.0 }",
-     "coupled_limits[0].coefficients.wrist", "not a joint"),
-    ("desk4", "lower = -1.2\nupper = 0.9", "lower = 0.9\nupper = -1.2", "coupled_limits[0].upper",
-     "greater than lower"),
+    (
+        "desk4",
+        "coefficients = { major = 1.0, minor = 1.0 }",
+        "coefficients = { major = 1.0, wrist = 1.0 }",
+        "coupled_limits[0].coefficients.wrist",
+        "not a joint",
+    ),
+    (
+        "desk4",
+        "lower = -1.2\nupper = 0.9",
+        "lower = 0.9\nupper = -1.2",
+        "coupled_limits[0].upper",
+        "greater than lower",
+    ),
     ("desk4", "neutral = [0.0, 1.2, -1.2]", "neutral = [0.0, 1.9, -0.5]", "robot.neutral", "linkage"),
     ("desk4", 'pitch = "level"', 'pitch = "tilted"', "geometry.pitch", "'joints' or 'level'"),
 ]

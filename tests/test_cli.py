@@ -14,8 +14,13 @@ pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; 
 
 
 def armd(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.cli", *args], capture_output=True, text=True,
-                          cwd=Path(__file__).resolve().parent.parent, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "armd.cli", *args],
+        capture_output=True,
+        text=True,
+        cwd=Path(__file__).resolve().parent.parent,
+        timeout=120,
+    )
 
 
 def test_catalogue_lists_every_arm() -> None:
@@ -55,9 +60,24 @@ def test_an_adapter_waits_for_a_router_and_says_so() -> None:
     from armd.service.zconfig import free_endpoint
 
     with SSC32Emulator() as emu:
-        proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "adapter", "ssc32", "insomniac", "--port",
-                                 emu.port, "--connect", free_endpoint()], cwd=Path(__file__).resolve().parent.parent,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "armd.cli",
+                "adapter",
+                "ssc32",
+                "insomniac",
+                "--port",
+                emu.port,
+                "--connect",
+                free_endpoint(),
+            ],
+            cwd=Path(__file__).resolve().parent.parent,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
         time.sleep(4.0)
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=20)
@@ -97,15 +117,15 @@ BLOCK_EXTRAS = "import sys; sys.modules.update(serial=None, matplotlib=None, mes
 def test_the_service_and_the_simulated_arms_need_no_extra() -> None:
     """pyserial (hardware), matplotlib and meshcat (view) are extras: the service, the client,
     the simulated arms and the command line import without them."""
-    code = BLOCK_EXTRAS + ("import armd.service.server, armd.adapters.sim, armd.cli, armd.clients; "
-                           "print('ok')")
+    code = BLOCK_EXTRAS + ("import armd.service.server, armd.adapters.sim, armd.cli, armd.clients; print('ok')")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
 
 
 def test_a_command_whose_extra_is_missing_says_which_to_install() -> None:
-    code = BLOCK_EXTRAS + ("from armd.cli import main; "
-                           "sys.exit(main(['adapter', 'ssc32', 'insomniac', '--port', '/dev/null']))")
+    code = BLOCK_EXTRAS + (
+        "from armd.cli import main; sys.exit(main(['adapter', 'ssc32', 'insomniac', '--port', '/dev/null']))"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "pip install 'armd[hardware]'" in r.stderr, r.stderr
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
@@ -133,8 +153,10 @@ def test_one_log_level_before_or_after_the_command() -> None:
     assert level("fk", "insomniac", "0") == "warning" and level("catalogue") == "warning"
     assert level("--log-level", "error", "serve") == "error" and level("serve", "--log-level", "debug") == "debug"
     assert level("serve", "-v") == "debug" and level("--log-level", "debug", "robots") == "debug"
-    code = ("import logging; from armd.cli import main; main(['--log-level', 'debug', 'catalogue', '--json']); "
-            "print(logging.getLogger('armd').getEffectiveLevel())")
+    code = (
+        "import logging; from armd.cli import main; main(['--log-level', 'debug', 'catalogue', '--json']); "
+        "print(logging.getLogger('armd').getEffectiveLevel())"
+    )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().splitlines()[-1] == str(logging.DEBUG), r.stderr
     assert armd("catalogue", "--log-level", "loud").returncode == 2

@@ -61,16 +61,34 @@ def targets() -> list[np.ndarray]:
     return out
 
 
-def _enumerated(P: np.ndarray, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, C: np.ndarray,
-                clo: np.ndarray, chi: np.ndarray, target: np.ndarray, ref: np.ndarray) -> tuple[float, np.ndarray]:
+def _enumerated(
+    P: np.ndarray,
+    J: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    C: np.ndarray,
+    clo: np.ndarray,
+    chi: np.ndarray,
+    target: np.ndarray,
+    ref: np.ndarray,
+) -> tuple[float, np.ndarray]:
     a = _arm(ARM)
     q = np.empty(len(ref))
     err = closest_box(P, J, lower, upper, C, clo, chi, a.weights, False, target, ref, q, True)
     return err, q
 
 
-def _iterated(P: np.ndarray, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, C: np.ndarray,
-              clo: np.ndarray, chi: np.ndarray, target: np.ndarray, starts: np.ndarray) -> float:
+def _iterated(
+    P: np.ndarray,
+    J: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    C: np.ndarray,
+    clo: np.ndarray,
+    chi: np.ndarray,
+    target: np.ndarray,
+    starts: np.ndarray,
+) -> float:
     """The best error of the Levenberg-Marquardt iteration from each start."""
     best = math.inf
     for q0 in starts:
@@ -83,10 +101,21 @@ def _iterated(P: np.ndarray, J: np.ndarray, lower: np.ndarray, upper: np.ndarray
 class Grid:
     """Planar poses on a grid within the limits (no wrist; coupled rows on the planar joints only)."""
 
-    def __init__(self, P: np.ndarray, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, C: np.ndarray,
-                 clo: np.ndarray, chi: np.ndarray, n1: int = 601, n2: int = 751) -> None:
-        t1, t2 = np.meshgrid(np.linspace(lower[J[1]], upper[J[1]], n1), np.linspace(lower[J[2]], upper[J[2]], n2),
-                             indexing="ij")
+    def __init__(
+        self,
+        P: np.ndarray,
+        J: np.ndarray,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        C: np.ndarray,
+        clo: np.ndarray,
+        chi: np.ndarray,
+        n1: int = 601,
+        n2: int = 751,
+    ) -> None:
+        t1, t2 = np.meshgrid(
+            np.linspace(lower[J[1]], upper[J[1]], n1), np.linspace(lower[J[2]], upper[J[2]], n2), indexing="ij"
+        )
         t1, t2 = t1.ravel(), t2.ravel()
         keep = np.ones(len(t1), dtype=bool)
         for r in range(len(C)):
@@ -103,8 +132,11 @@ class Grid:
         aim = math.atan2(y, x) - np.arctan2(self.py, self.u)
         aim = self.ylo + np.remainder(aim - self.ylo, 2 * math.pi)  # its turn at or above the lower limit
         best = math.inf
-        for yaw in (np.full_like(self.u, self.ylo), np.full_like(self.u, self.yhi),
-                    np.where(aim <= self.yhi, aim, self.ylo)):
+        for yaw in (
+            np.full_like(self.u, self.ylo),
+            np.full_like(self.u, self.yhi),
+            np.where(aim <= self.yhi, aim, self.ylo),
+        ):
             c, s = np.cos(yaw), np.sin(yaw)
             d2 = (c * self.u - s * self.py - x) ** 2 + (s * self.u + c * self.py - y) ** 2 + (self.z - z) ** 2
             best = min(best, float(d2.min()))
@@ -173,8 +205,9 @@ def _variant(name: str) -> tuple[np.ndarray, ...]:
     return P, fp.J, lower, upper, C, clo, chi
 
 
-@pytest.mark.parametrize("name", ["no offset", "large offset", "straight and folded elbow", "scaled rows",
-                                  "yaw all round"])
+@pytest.mark.parametrize(
+    "name", ["no offset", "large offset", "straight and folded elbow", "scaled rows", "yaw all round"]
+)
 def test_other_planar_limits_are_enumerated_exactly(name: str) -> None:
     """On the family's formula (the exact model of such an arm): targets reachable or not, the
     enumeration is within every limit and never worse than 12 iterations or the grid."""
@@ -208,16 +241,49 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
         err, _ = _enumerated(fp.P, fp.J, a.lower, a.upper, C, clo, chi, t, ARM.neutral)
         assert err == -1.0
         q = np.empty(3)
-        _, _, its = closest_family(fp.P, fp.J, a.lower, a.upper, C, clo, chi, a.weights, False, t, 0.0, 0.0,
-                                   ARM.neutral, a.atlas_q, a.atlas_p, 3, q)
+        _, _, its = closest_family(
+            fp.P,
+            fp.J,
+            a.lower,
+            a.upper,
+            C,
+            clo,
+            chi,
+            a.weights,
+            False,
+            t,
+            0.0,
+            0.0,
+            ARM.neutral,
+            a.atlas_q,
+            a.atlas_p,
+            3,
+            q,
+        )
         assert its > 0
     wrist = _arm(robots.load("insomniac"))
     assert wrist.fp is not None
     P = wrist.fp.P.copy()
     P[1] = 0.01
     q = np.empty(len(wrist.lower))
-    assert closest_box(P, wrist.fp.J, wrist.lower, wrist.upper, wrist.C, wrist.clo, wrist.chi, wrist.weights,
-                       wrist.exact_pitch_search, t, wrist.robot.neutral, q, True) == -1.0
+    assert (
+        closest_box(
+            P,
+            wrist.fp.J,
+            wrist.lower,
+            wrist.upper,
+            wrist.C,
+            wrist.clo,
+            wrist.chi,
+            wrist.weights,
+            wrist.exact_pitch_search,
+            t,
+            wrist.robot.neutral,
+            q,
+            True,
+        )
+        == -1.0
+    )
 
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3"])
@@ -240,10 +306,12 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
             continue
         ref = arm.neutral if done % 2 else rng.uniform(a.lower, a.upper)
         q_full, q_pruned = np.empty(arm.nq), np.empty(arm.nq)
-        full = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref,
-                           q_full, False)
-        pruned = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t,
-                             ref, q_pruned, True)
+        full = closest_box(
+            fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref, q_full, False
+        )
+        pruned = closest_box(
+            fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref, q_pruned, True
+        )
         assert (full < 0) == (pruned < 0), t.tolist()
         if full >= 0:
             assert abs(pruned - full) <= 1e-12 * max(full, 1.0), (t.tolist(), full, pruned)

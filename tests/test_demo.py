@@ -19,8 +19,13 @@ CASES = ["ik parallel", "ik perpendicular", "ik free", "ik unreachable", "joint 
 
 def test_demo_runs_every_case_on_every_arm(tmp_path: Path) -> None:
     out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "armd.cli", "demo", "--out", str(out), "--time-scale", "4"],
-                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    r = subprocess.run(
+        [sys.executable, "-m", "armd.cli", "demo", "--out", str(out), "--time-scale", "4"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+    )
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     rows = json.loads((out / "demo.json").read_text())
@@ -49,7 +54,12 @@ def test_demo_runs_every_case_on_every_arm(tmp_path: Path) -> None:
 
 
 def test_demo_unknown_arm_is_an_error(tmp_path: Path) -> None:
-    r = subprocess.run([sys.executable, "-m", "armd.cli", "demo", "nosuch", "--out", str(tmp_path / "d")],
-                       capture_output=True, text=True, cwd=ROOT, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "armd.cli", "demo", "nosuch", "--out", str(tmp_path / "d")],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
     assert r.returncode == 1 and "unknown robot" in r.stderr
     assert not (tmp_path / "d").exists()

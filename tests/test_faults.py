@@ -128,8 +128,13 @@ def _leaver(endpoint: str, key: str, request: dict[str, object], tmp_path: Path)
     close its session."""
     payload = tmp_path / f"{key.replace('/', '_')}.json"
     payload.write_text(json.dumps(request))
-    proc = subprocess.Popen([sys.executable, "-c", LEAVER, endpoint, key, str(payload)], cwd=ROOT,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-c", LEAVER, endpoint, key, str(payload)],
+        cwd=ROOT,
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout is not None and proc.stdout.readline().strip() == "sent"
     return proc
 
@@ -144,11 +149,13 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
     service = Service(session, {"gupta3": arm}, prefix="leave", limits=Limits(max_samples=200_000))
     sim = SimAdapter(session, arm, prefix="leave", time_scale=1.0)
     published: list[dict[str, object]] = []
-    sub = session.declare_subscriber("leave/gupta3/trajectory",
-                                     lambda s: published.append(json.loads(s.payload.to_bytes())))
+    sub = session.declare_subscriber(
+        "leave/gupta3/trajectory", lambda s: published.append(json.loads(s.payload.to_bytes()))
+    )
     estops: list[dict[str, object]] = []
-    estop_sub = session.declare_subscriber("leave/gupta3/estop",
-                                           lambda s: estops.append(json.loads(s.payload.to_bytes())))
+    estop_sub = session.declare_subscriber(
+        "leave/gupta3/estop", lambda s: estops.append(json.loads(s.payload.to_bytes()))
+    )
     client = ArmClient(router, prefix="leave", timeout=10.0)
     killed = closed = None
     try:
@@ -169,8 +176,12 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
         assert published == []  # an IK answer publishes nothing, client or not
         # 2. leaves (closes its session) while its move is planned (a line of 72,000 samples, ~0.5 s)
         goal = (arm.fk(sim.position) + np.array([0.0, 0.05, 0.05])).tolist()
-        closed = _leaver(router, "leave/gupta3/move", {"goal": {"target": goal}, "path": "line", "speed": 0.05,
-                                                       "rate_hz": 1000}, tmp_path)
+        closed = _leaver(
+            router,
+            "leave/gupta3/move",
+            {"goal": {"target": goal}, "path": "line", "speed": 0.05, "rate_hz": 1000},
+            tmp_path,
+        )
         wait_for(lambda: service.stats()["in_flight"] >= 1, timeout=30, what="the move to arrive")
         assert closed.stdin is not None
         closed.stdin.write("leave\n")

@@ -38,12 +38,14 @@ def sg5ut_dh(q: np.ndarray) -> np.ndarray:
     table = [(math.pi / 2, 0.0), (0.0, 0.155), (0.0, 0.123), (math.pi / 2, 0.185)]
     T = np.eye(4)
     for (alpha, a), th in zip(table, q, strict=True):
-        A = np.array([
-            [c(th), -s(th) * c(alpha), s(th) * s(alpha), a * c(th)],
-            [s(th), c(th) * c(alpha), -c(th) * s(alpha), a * s(th)],
-            [0, s(alpha), c(alpha), 0],
-            [0, 0, 0, 1],
-        ])
+        A = np.array(
+            [
+                [c(th), -s(th) * c(alpha), s(th) * s(alpha), a * c(th)],
+                [s(th), c(th) * c(alpha), -c(th) * s(alpha), a * s(th)],
+                [0, s(alpha), c(alpha), 0],
+                [0, 0, 0, 1],
+            ]
+        )
         T = T @ A
     return T[:3, 3]
 

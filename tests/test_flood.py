@@ -25,13 +25,30 @@ MOVE_BOUND = 2.0  # [s] (bench/flood.py: tens of milliseconds)
 STOP_BOUND = 1.0  # [s]
 
 
-def test_move_and_stop_never_wait_behind_ik_batches(router: str, service: Service, client: ArmClient,
-                                                    adapter_session: object) -> None:
+def test_move_and_stop_never_wait_behind_ik_batches(
+    router: str, service: Service, client: ArmClient, adapter_session: object
+) -> None:
     arm = robots.load("insomniac")
     sim = SimAdapter(adapter_session, arm)  # type: ignore[arg-type]
-    flood = subprocess.Popen([sys.executable, str(ROOT / "bench" / "flood.py"), "--worker", "flood", "--endpoint",
-                              router, "--batches", "80", "--targets", "10000", "--seconds", "12"],
-                             cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    flood = subprocess.Popen(
+        [
+            sys.executable,
+            str(ROOT / "bench" / "flood.py"),
+            "--worker",
+            "flood",
+            "--endpoint",
+            router,
+            "--batches",
+            "80",
+            "--targets",
+            "10000",
+            "--seconds",
+            "12",
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         wait_for(lambda: service._adapter_count(arm) == 1, what="the simulated arm")
         assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"

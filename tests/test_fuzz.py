@@ -22,9 +22,14 @@ N = 2000  # the suite's share; bench/fuzz.py runs 10,000 and more
 
 def test_bad_requests_each_get_one_structured_error(client: ArmClient, service: object) -> None:
     published: list[str] = []
-    sub = client.session.declare_subscriber("armd/**", lambda s: published.append(str(s.key_expr))
-                                            if s.key_expr.intersects("armd/*/trajectory") or
-                                            s.key_expr.intersects("armd/*/gripper") else None)
+    sub = client.session.declare_subscriber(
+        "armd/**",
+        lambda s: (
+            published.append(str(s.key_expr))
+            if s.key_expr.intersects("armd/*/trajectory") or s.key_expr.intersects("armd/*/gripper")
+            else None
+        ),
+    )
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     try:
         codes: dict[str, int] = {}

@@ -24,11 +24,18 @@ from tests.conftest import wait_for
 ARM = "desk4"
 KEYS = ("trajectory", "gripper", "unlock", "estop", "state", "events")
 
-_scalars = st.one_of(st.none(), st.booleans(), st.integers(min_value=-(2**70), max_value=2**70),
-                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
-_json = st.recursive(_scalars, lambda inner: st.one_of(st.lists(inner, max_size=4),
-                                                       st.dictionaries(st.text(max_size=6), inner, max_size=4)),
-                     max_leaves=12)
+_scalars = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(2**70), max_value=2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=8),
+)
+_json = st.recursive(
+    _scalars,
+    lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=6), inner, max_size=4)),
+    max_leaves=12,
+)
 
 
 def _valid(arm: robots.Robot, key: str) -> dict[str, Any]:
@@ -36,13 +43,28 @@ def _valid(arm: robots.Robot, key: str) -> dict[str, Any]:
     q = list(arm.neutral)
     n = arm.nq
     return {
-        "trajectory": {"robot": ARM, "id": "fuzz", "kind": "move", "rate_hz": 50.0, "times": [0.0, 0.02],
-                       "position": [q, q], "velocity": [[0.0] * n] * 2, "acceleration": [[0.0] * n] * 2},
+        "trajectory": {
+            "robot": ARM,
+            "id": "fuzz",
+            "kind": "move",
+            "rate_hz": 50.0,
+            "times": [0.0, 0.02],
+            "position": [q, q],
+            "velocity": [[0.0] * n] * 2,
+            "acceleration": [[0.0] * n] * 2,
+        },
         "gripper": {"opening": 0.5, "id": "fuzz"},
         "unlock": {"how": "assume_rest"},
         "estop": {"id": "fuzz"},
-        "state": {"robot": ARM, "adapter": "fuzzer", "seq": 1, "position": q, "velocity": [0.0] * n,
-                  "acceleration": [0.0] * n, "moving": False},
+        "state": {
+            "robot": ARM,
+            "adapter": "fuzzer",
+            "seq": 1,
+            "position": q,
+            "velocity": [0.0] * n,
+            "acceleration": [0.0] * n,
+            "moving": False,
+        },
         "events": {"event": "accepted", "id": "fuzz", "adapter": "fuzzer"},
     }[key]
 
@@ -61,8 +83,9 @@ def messages(draw: st.DrawFn, arm: robots.Robot) -> tuple[str, bytes]:
     return key, json.dumps(msg, allow_nan=True).encode()
 
 
-def test_junk_on_the_adapters_keys_moves_nothing(client: ArmClient, service: object,
-                                                  adapter_session: zenoh.Session, router: str) -> None:
+def test_junk_on_the_adapters_keys_moves_nothing(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, router: str
+) -> None:
     arm = robots.load(ARM)
     sim = SimAdapter(adapter_session, arm)
     junk = zenoh.open(network_config(connect=[router]))  # (anyone on the network)

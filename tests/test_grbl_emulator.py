@@ -116,13 +116,29 @@ def test_settings_print_store_and_scale_the_steps(grbl: Open) -> None:
     emu, ser = grbl(time_scale=100)
     printed = command(ser, "$$")
     assert printed[-1] == "ok" and len(printed) == len(emu.settings) + 1
-    assert {"$0=10", "$10=1", "$11=0.010", "$30=1000", "$100=250.000", "$101=250.000", "$102=250.000",
-            "$110=500.000", "$120=10.000", "$132=200.000"} <= set(printed)
+    assert {
+        "$0=10",
+        "$10=1",
+        "$11=0.010",
+        "$30=1000",
+        "$100=250.000",
+        "$101=250.000",
+        "$102=250.000",
+        "$110=500.000",
+        "$120=10.000",
+        "$132=200.000",
+    } <= set(printed)
     assert command(ser, "$100=8.8889") == ["ok"]
     assert emu.settings[100] == 8.8889
     assert "$100=8.889" in command(ser, "$$")
-    for line, answer in [("$100=abc", "error:2"), ("$7=1", "error:3"), ("$100", "error:3"),
-                         ("$100=-1", "error:4"), ("$0=2", "error:6"), ("$100=10000", "error:12")]:
+    for line, answer in [
+        ("$100=abc", "error:2"),
+        ("$7=1", "error:3"),
+        ("$100", "error:3"),
+        ("$100=-1", "error:4"),
+        ("$0=2", "error:6"),
+        ("$100=10000", "error:12"),
+    ]:
         assert command(ser, line) == [answer], line
     assert command(ser, "G0 X90 Y1") == ["ok"]
     wait_for(lambda: emu.state == "Idle")
@@ -344,9 +360,22 @@ def test_one_answer_per_line(grbl: Open) -> None:
 
 def test_errors_are_grbl_s_codes(grbl: Open) -> None:
     emu, ser = grbl()
-    for line, code in [("G1 X1", 22), ("G99", 20), ("Q5", 20), ("A1", 20), ("123", 1), ("G1 X", 2),
-                       ("G1 X1 X2 F100", 25), ("G0 G1 X1", 24), ("G20 G21", 21), ("G4", 28), ("G1 F-5", 4),
-                       ("G0 X1 P2", 36), ("G1.5 X1", 23), ("X" + "1" * 80, 11)]:
+    for line, code in [
+        ("G1 X1", 22),
+        ("G99", 20),
+        ("Q5", 20),
+        ("A1", 20),
+        ("123", 1),
+        ("G1 X", 2),
+        ("G1 X1 X2 F100", 25),
+        ("G0 G1 X1", 24),
+        ("G20 G21", 21),
+        ("G4", 28),
+        ("G1 F-5", 4),
+        ("G0 X1 P2", 36),
+        ("G1.5 X1", 23),
+        ("X" + "1" * 80, 11),
+    ]:
         assert command(ser, line) == [f"error:{code}"], line
     assert emu.steps() == {"X": 0, "Y": 0, "Z": 0}  # a line with an error does nothing
 
@@ -361,8 +390,13 @@ def test_status_reports_run_then_idle(grbl: Open) -> None:
     emu, ser = grbl(time_scale=10)
     assert command(ser, "$10=3") == ["ok"]  # MPos and buffer state
     first = status(ser)
-    assert first == {"state": "Idle", "MPos": "0.000,0.000,0.000", "Bf": "15,128", "FS": "0,0",
-                     "WCO": "0.000,0.000,0.000"}
+    assert first == {
+        "state": "Idle",
+        "MPos": "0.000,0.000,0.000",
+        "Bf": "15,128",
+        "FS": "0,0",
+        "WCO": "0.000,0.000,0.000",
+    }
     assert status(ser)["Ov"] == "100,100,100"  # GRBL sends WCO in the first report, Ov in the second
     assert command(ser, "G1 X10 F300") == ["ok"]
     assert command(ser, "G1 X0") == ["ok"]
@@ -485,8 +519,13 @@ def test_not_responding_times_out_then_recovers(grbl: Open) -> None:
 
 def test_run_as_a_program_until_ctrl_c() -> None:
     root = Path(__file__).resolve().parent.parent
-    proc = subprocess.Popen([sys.executable, "-m", "armd.adapters.emulators.grbl"], cwd=root, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.adapters.emulators.grbl"],
+        cwd=root,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     try:
         assert proc.stdout is not None
         port = proc.stdout.readline().strip()
@@ -535,9 +574,16 @@ def test_g10_l2_offsets_give_wpos_and_wco(grbl: Open) -> None:
     clock.now += 10.0
     assert emu.position()["X"] == 0.0
     assert command(ser, "$G")[0].startswith("[GC:G0 G55 ")
-    for line, code in [("G10 L2 X1", 28), ("G10 L2 P7 X1", 29), ("G10 L3 P1 X1", 20), ("G10 L2 P1", 26),
-                       ("G10 L2 P1 G0 X1", 24), ("G92", 26), ("G10 L2 P1 X1 R2", 20),
-                       ("G10 L20 P1 X1 R2", 36)]:
+    for line, code in [
+        ("G10 L2 X1", 28),
+        ("G10 L2 P7 X1", 29),
+        ("G10 L3 P1 X1", 20),
+        ("G10 L2 P1", 26),
+        ("G10 L2 P1 G0 X1", 24),
+        ("G92", 26),
+        ("G10 L2 P1 X1 R2", 20),
+        ("G10 L20 P1 X1 R2", 36),
+    ]:
         assert command(ser, line) == [f"error:{code}"], line
 
 
@@ -588,8 +634,9 @@ def test_a_dtr_reset_zeroes_grbls_counters_not_the_arm(grbl: Open) -> None:
         assert emu.physical()["X"] == 106.0
 
 
-def home(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 0.05,
-         send: bytes = b"$H\n") -> list[str]:
+def home(
+    emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 0.05, send: bytes = b"$H\n"
+) -> list[str]:
     """Send ``$H`` (``send``) and run the fake clock until homing ends; return what came back."""
     ser.write(send)
     wait_for(lambda: emu.state != "Alarm" and emu.state != "Idle")
@@ -606,8 +653,12 @@ def home(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, step: float = 
 
 def test_homing_moves_the_arm_to_its_switches(grbl: Open) -> None:
     clock = FakeClock()
-    emu, ser = grbl(clock=clock, settings={22: 1, 23: 2}, home_switches={"X": 30.0, "Y": -20.0, "Z": 10.0},
-                    physical_start={"X": 0.0, "Y": 0.0, "Z": 0.0})
+    emu, ser = grbl(
+        clock=clock,
+        settings={22: 1, 23: 2},
+        home_switches={"X": 30.0, "Y": -20.0, "Z": 10.0},
+        physical_start={"X": 0.0, "Y": 0.0, "Z": 0.0},
+    )
     assert readline(ser) == "[MSG:'$H'|'$X' to unlock]"  # homing enabled: GRBL starts locked
     assert command(ser, "G0 X1") == ["error:9"]
     start = clock.now
@@ -870,8 +921,20 @@ def test_random_streams_holds_and_overrides_always_come_to_rest() -> None:
                 x, y, f = rng.uniform(-2, 2), rng.uniform(-2, 2), rng.choice([60, 300, 3000])
                 feed(f"G1 X{x:.3f} Y{y:.3f} F{f}\n".encode())
             elif r < 0.62:
-                feed(rng.choice([b"!", b"~", b"~", bytes([0x91]), bytes([0x92]), bytes([0x96]), b"$J=G91 X1 F200\n",
-                                 bytes([0x85])]))
+                feed(
+                    rng.choice(
+                        [
+                            b"!",
+                            b"~",
+                            b"~",
+                            bytes([0x91]),
+                            bytes([0x92]),
+                            bytes([0x96]),
+                            b"$J=G91 X1 F200\n",
+                            bytes([0x85]),
+                        ]
+                    )
+                )
             clock.now += rng.choice([0.001, 0.01, 0.05, 0.2])
             emu._service()
             assert emu._v < 60.0

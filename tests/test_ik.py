@@ -59,8 +59,9 @@ def pitched_configs(arm: robots.Robot, pitch: float, n: int, seed: int) -> np.nd
 
 
 @pytest.mark.parametrize("name", WRIST_ARMS)
-@pytest.mark.parametrize(("approach", "pitch"), [("parallel", 0.0), ("perpendicular", -math.pi / 2),
-                                                 (0.4, 0.4), (-1.0, -1.0)])
+@pytest.mark.parametrize(
+    ("approach", "pitch"), [("parallel", 0.0), ("perpendicular", -math.pi / 2), (0.4, 0.4), (-1.0, -1.0)]
+)
 def test_approach_modes(name: str, approach: object, pitch: float) -> None:
     arm = robots.load(name)
     qs = pitched_configs(arm, pitch, 300, seed=14)
@@ -172,8 +173,21 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         if r.status != "unreachable":
             continue  # (the enumeration is asked only when no configuration reaches the target)
         q = np.empty(arm.nq)
-        err = closest_box(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, target,
-                          arm.neutral, q, True)
+        err = closest_box(
+            fp.P,
+            fp.J,
+            a.lower,
+            a.upper,
+            a.C,
+            a.clo,
+            a.chi,
+            a.weights,
+            a.exact_pitch_search,
+            target,
+            arm.neutral,
+            q,
+            True,
+        )
         assert err >= 0.0, target.tolist()
         used += 1
         assert arm.limits.contains(q, tol=0.0)
@@ -181,8 +195,9 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         assert r.iterations == 0 and math.isclose(r.position_error, err, rel_tol=1e-12)
         for k in rng.choice(len(a.atlas_q), 12, replace=False):
             q0 = a.atlas_q[k].copy()
-            other, _, _ = refine_family(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, target, 0.0, 0.0, q0,
-                                        300, 0.4, 1e-12)
+            other, _, _ = refine_family(
+                fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, target, 0.0, 0.0, q0, 300, 0.4, 1e-12
+            )
             assert err <= other + 1e-9, (target.tolist(), err, other)
         if used >= 40:
             break
@@ -315,7 +330,7 @@ def test_arm_outside_the_family_gets_the_qp(arm_copy: Callable[..., Path]) -> No
     folder = arm_copy("gupta3")
     toml = (folder / "robot.toml").read_text()
     head, rest = toml.split(text_start)
-    tail = rest[rest.index("# Arduino"):]
+    tail = rest[rest.index("# Arduino") :]
     (folder / "robot.toml").write_text(head + tail)
     arm = robots.load_folder(folder)
     assert arm.geometry is None

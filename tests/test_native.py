@@ -39,21 +39,26 @@ print(json.dumps(out))
 
 
 def _run(code: str, **env: str) -> dict[str, object]:
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600,
-                          env={**os.environ, **env})
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=600, env={**os.environ, **env}
+    )
     assert done.returncode == 0, done.stderr
     return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
 
 
 def test_the_native_build_is_there_and_used() -> None:
-    assert jit.NATIVE is not None, ("armd.solvers._native is missing or stale: reinstall armd "
-                                    "(pip install -e '.[dev]') to build it")
+    assert jit.NATIVE is not None, (
+        "armd.solvers._native is missing or stale: reinstall armd (pip install -e '.[dev]') to build it"
+    )
     assert jit.built_from(jit.NATIVE, jit.source_digest()) and not jit.built_from(jit.NATIVE, "0" * 16)
     # what the solver and the planner call (the compiled modules' own names may have been switched
     # to Numba's by a test that calls an inner function itself; under the tests, each is wrapped
     # in the signature check)
-    for caller, name in ((solvers.ik, "solve_packed"), (solvers.batch, "solve_many"), (planning.trajectory,
-                                                                                        "all_clear")):
+    for caller, name in (
+        (solvers.ik, "solve_packed"),
+        (solvers.batch, "solve_many"),
+        (planning.trajectory, "all_clear"),
+    ):
         given = getattr(caller, name)
         assert getattr(given, "__wrapped__", given) is getattr(jit.NATIVE, name)
 
@@ -71,13 +76,20 @@ def test_a_call_with_the_wrong_arrays_is_refused_under_the_tests() -> None:
     with pytest.raises(TypeError, match="argument 3"):
         fk(P, J, np.zeros(3), np.empty((1, 3)))
     assert jit.parse_signature("Tuple((i8, f8))(f8[:], i8, f8[:, ::1], b1, f8[::1])") == [
-        ("float64", 1, False), ("int64", 0, False), ("float64", 2, True), ("bool", 0, False), ("float64", 1, True)]
+        ("float64", 1, False),
+        ("int64", 0, False),
+        ("float64", 2, True),
+        ("bool", 0, False),
+        ("float64", 1, True),
+    ]
 
 
 def test_a_service_never_loads_numba() -> None:
-    code = ("import sys, json; from armd import robots; from armd.service import server; "
-            "[server._warm_arm(robots.load(n)) for n in robots.names()]; "
-            "print(json.dumps(sorted(m for m in ('numba', 'llvmlite') if m in sys.modules)))")
+    code = (
+        "import sys, json; from armd import robots; from armd.service import server; "
+        "[server._warm_arm(robots.load(n)) for n in robots.names()]; "
+        "print(json.dumps(sorted(m for m in ('numba', 'llvmlite') if m in sys.modules)))"
+    )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip().splitlines()[-1] == "[]"
@@ -92,15 +104,21 @@ def test_native_and_jit_give_the_same_answers() -> None:
         want = jitted[name]
         assert got["status"] == want["status"], name  # type: ignore[index]
         for key in ("q", "pitch", "batch_q", "plan"):
-            assert np.allclose(np.array(got[key], dtype=float), np.array(want[key], dtype=float),  # type: ignore[index]
-                               rtol=0, atol=1e-9), (name, key)
+            assert np.allclose(
+                np.array(got[key], dtype=float),
+                np.array(want[key], dtype=float),  # type: ignore[index]
+                rtol=0,
+                atol=1e-9,
+            ), (name, key)
 
 
 @pytest.mark.slow
 def test_the_jit_cache_is_filed_by_module_not_by_checkout_path(tmp_path: Path) -> None:
-    code = ("import json; from armd.solvers import analytic; "
-            "impl = analytic.solve_packed._cache._impl; "
-            "print(json.dumps([impl.locator.get_cache_path(), type(impl.locator).root]))")
+    code = (
+        "import json; from armd.solvers import analytic; "
+        "impl = analytic.solve_packed._cache._impl; "
+        "print(json.dumps([impl.locator.get_cache_path(), type(impl.locator).root]))"
+    )
     path, root = _run(code, ARMD_NATIVE="0", ARMD_CACHE_DIR=str(tmp_path))  # type: ignore[misc]
     assert path == os.path.join(root, "solvers") and root.startswith(str(tmp_path))
     assert str(ROOT) not in path

@@ -31,8 +31,9 @@ def test_plot_writes_a_png_with_content(tmp_path: Path) -> None:
 
 
 def run(*args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.cli", *args], capture_output=True, text=True, cwd=ROOT,
-                          timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "armd.cli", *args], capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
 
 
 def test_cli_plot(tmp_path: Path) -> None:
@@ -74,6 +75,27 @@ def test_cli_plan_plot(client: object, router: str, tmp_path: Path, capsys: obje
     from armd.cli import main
 
     out = tmp_path / "plan.png"
-    assert main(["plan", "insomniac", "--target", "0.25", "0.05", "0.2", "--start", "0", "1.2", "-1.2", "0", "0",
-                 "--plot", str(out), "--connect", router]) == 0
+    assert (
+        main(
+            [
+                "plan",
+                "insomniac",
+                "--target",
+                "0.25",
+                "0.05",
+                "0.2",
+                "--start",
+                "0",
+                "1.2",
+                "-1.2",
+                "0",
+                "0",
+                "--plot",
+                str(out),
+                "--connect",
+                router,
+            ]
+        )
+        == 0
+    )
     assert out.stat().st_size > 10_000

@@ -17,12 +17,24 @@ from hypothesis import strategies as st
 from armd.errors import BadRequest
 from armd.service.protocol import Limits, _depth, allowed, decode
 
-scalars = st.none() | st.booleans() | st.integers(-10**6, 10**6) | st.floats(allow_nan=False, allow_infinity=False) \
-    | st.text(alphabet="[]{}\"\\ ab", max_size=6)
-objects = st.dictionaries(st.text(alphabet="[]{}ab", max_size=3),
-                          st.recursive(scalars, lambda inner: st.lists(inner, max_size=3)
-                                       | st.dictionaries(st.text(alphabet="[]{ab", max_size=2), inner, max_size=3),
-                                       max_leaves=12), max_size=3)
+scalars = (
+    st.none()
+    | st.booleans()
+    | st.integers(-(10**6), 10**6)
+    | st.floats(allow_nan=False, allow_infinity=False)
+    | st.text(alphabet='[]{}"\\ ab', max_size=6)
+)
+objects = st.dictionaries(
+    st.text(alphabet="[]{}ab", max_size=3),
+    st.recursive(
+        scalars,
+        lambda inner: (
+            st.lists(inner, max_size=3) | st.dictionaries(st.text(alphabet="[]{ab", max_size=2), inner, max_size=3)
+        ),
+        max_leaves=12,
+    ),
+    max_size=3,
+)
 
 
 def refusal(payload: bytes, limits: Limits) -> str | None:
@@ -44,19 +56,25 @@ def test_too_deep_exactly_when_nested_deeper_than_the_limit(obj: dict[str, Any],
         assert why is None
 
 
-@pytest.mark.parametrize(("payload", "ok"), [
-    (b'{"a": [[1]]}', True),  # depth 4 from 3 brackets: not walked, and within 4
-    (b'{"a": [[[]]]}', True),  # 4 brackets, depth 4: walked, within
-    (b'{"a": [[[1]]]}', False),  # depth 5
-    (b'{"a": "[[[[[[[["}', True),  # brackets in a string: walked, depth 2
-])
+@pytest.mark.parametrize(
+    ("payload", "ok"),
+    [
+        (b'{"a": [[1]]}', True),  # depth 4 from 3 brackets: not walked, and within 4
+        (b'{"a": [[[]]]}', True),  # 4 brackets, depth 4: walked, within
+        (b'{"a": [[[1]]]}', False),  # depth 5
+        (b'{"a": "[[[[[[[["}', True),  # brackets in a string: walked, depth 2
+    ],
+)
 def test_depth_at_the_limit(payload: bytes, ok: bool) -> None:
     assert (refusal(payload, Limits(max_depth=4)) is None) == ok
 
 
 @settings(max_examples=600, deadline=None)
-@given(payload=st.binary(min_size=1, max_size=40) | objects.map(lambda o: json.dumps(o, ensure_ascii=False).encode())
-       | st.builds(lambda a, b, c: a + b + c, st.just(b'{"a": "'), st.binary(max_size=8), st.just(b'"}')))
+@given(
+    payload=st.binary(min_size=1, max_size=40)
+    | objects.map(lambda o: json.dumps(o, ensure_ascii=False).encode())
+    | st.builds(lambda a, b, c: a + b + c, st.just(b'{"a": "'), st.binary(max_size=8), st.just(b'"}'))
+)
 def test_not_utf8_and_not_json_are_told_apart(payload: bytes) -> None:
     why = refusal(payload, Limits())
     try:

@@ -73,7 +73,10 @@ def test_the_sizes_and_the_speed_floor_are_the_codes() -> None:
     from armd.service.protocol import MAX_METRES, MAX_RADIANS, MAX_RATE
 
     rows = dict(re.findall(r"^ *\| (a Cartesian coordinate|a joint value|a start state's)[^|]*\| (\S+) \|$", DOC, re.M))
-    assert {k: float(v) for k, v in rows.items()} == {"a Cartesian coordinate": MAX_METRES,
-                                                      "a joint value": MAX_RADIANS, "a start state's": MAX_RATE}
+    assert {k: float(v) for k, v in rows.items()} == {
+        "a Cartesian coordinate": MAX_METRES,
+        "a joint value": MAX_RADIANS,
+        "a start state's": MAX_RATE,
+    }
     speed = re.search(r'"speed": \{"type": "number", "minimum": ([0-9.e+-]+), "maximum": 1', DOC)
     assert speed is not None and float(speed.group(1)) == MIN_SPEED

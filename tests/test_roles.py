@@ -69,6 +69,7 @@ def token_seen(declarer: zenoh.Session, key: str, observer: zenoh.Session) -> bo
 
 # -- what each role may do ---------------------------------------------------------------------------
 
+
 def test_the_service_publishes_trajectories_and_stops_that_adapters_hear(roles: Callable[[str], zenoh.Session]) -> None:
     service, adapter = roles("service"), roles("adapter")
     assert delivered(service, "armd/desk4/trajectory", adapter)
@@ -99,6 +100,7 @@ def test_a_guest_asks_the_read_only_verbs(roles: Callable[[str], zenoh.Session])
 
 
 # -- and what each may not ---------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("verb", ["move", "stop", "gripper"])
 def test_a_guest_cannot_ask_a_verb_that_moves(roles: Callable[[str], zenoh.Session], verb: str) -> None:
@@ -143,8 +145,7 @@ def test_an_adapter_cannot_ask_verbs_or_command_other_adapters(roles: Callable[[
     assert not delivered(adapter, "armd/desk4/estop", other)
 
 
-def test_an_operator_cannot_bypass_the_service_or_speak_for_an_adapter(
-        roles: Callable[[str], zenoh.Session]) -> None:
+def test_an_operator_cannot_bypass_the_service_or_speak_for_an_adapter(roles: Callable[[str], zenoh.Session]) -> None:
     operator, adapter, service, other = roles("operator"), roles("adapter"), roles("service"), roles("operator")
     assert not delivered(operator, "armd/desk4/trajectory", adapter)  # (trajectories come checked, from the service)
     assert not delivered(operator, "armd/desk4/gripper", adapter)

@@ -29,8 +29,9 @@ DOCS = ROOT / "docs" / "security"
 def running(*args: str, ready: str) -> Iterator[tuple[subprocess.Popen[str], str]]:
     """``armd ARGS`` in a process of its own, once it printed a line containing ``ready``: the
     process and that line. Stopped with SIGTERM at the end, as a service manager stops it."""
-    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", *args], cwd=ROOT, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     assert proc.stdout is not None and proc.stderr is not None
     try:
         line = proc.stdout.readline()  # the first line says where it listens, or the process ended
@@ -48,8 +49,11 @@ def running(*args: str, ready: str) -> Iterator[tuple[subprocess.Popen[str], str
 def _tls_copy(name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int) -> Path:
     """docs/security/NAME on free ports, its certificate paths pointing at ``certs``."""
     text = (DOCS / name).read_text()
-    for old, new in {"tls/127.0.0.1:7448": f"tls/127.0.0.1:{tls_port}",
-                     "tcp/127.0.0.1:7447": f"tcp/127.0.0.1:{tcp_port}", '"certs/': f'"{certs}/'}.items():
+    for old, new in {
+        "tls/127.0.0.1:7448": f"tls/127.0.0.1:{tls_port}",
+        "tcp/127.0.0.1:7447": f"tcp/127.0.0.1:{tcp_port}",
+        '"certs/': f'"{certs}/',
+    }.items():
         text = text.replace(old, new)
     assert f"tls/127.0.0.1:{tls_port}" in text and f'"{certs}/' in text, f"{name} changed: mend this test"
     out = tmp / name
@@ -66,15 +70,20 @@ def test_the_tls_router_listens_where_its_file_says(tmp_path: Path, certs: Path)
     with running("router", "--config", str(router_file), ready="zenoh router") as (_, line):
         assert f"tls/127.0.0.1:{tls_port}" in line and f"tcp/127.0.0.1:{tcp_port}" in line, line
         local = zenoh.open(network_config(connect=[f"tcp/127.0.0.1:{tcp_port}"]))
-        answers = local.declare_queryable("armd-test/echo", lambda q: q.reply(q.key_expr, b"echo: " + (
-            q.payload.to_bytes() if q.payload is not None else b"")))
+        answers = local.declare_queryable(
+            "armd-test/echo",
+            lambda q: q.reply(q.key_expr, b"echo: " + (q.payload.to_bytes() if q.payload is not None else b"")),
+        )
         remote = zenoh.open(network_config(config_file=str(client_file)))
         try:
             got: list[bytes] = []
 
             def asked() -> bool:  # until the router has told the TLS client about the queryable
-                got.extend(r.ok.payload.to_bytes() for r in remote.get("armd-test/echo", payload=b"hello",
-                                                                         timeout=1.0) if r.ok is not None)
+                got.extend(
+                    r.ok.payload.to_bytes()
+                    for r in remote.get("armd-test/echo", payload=b"hello", timeout=1.0)
+                    if r.ok is not None
+                )
                 return bool(got)
 
             wait_for(asked, what="a reply over TLS")
@@ -103,8 +112,10 @@ def test_listen_replaces_the_files_endpoints(tmp_path: Path, certs: Path) -> Non
     """`armd router --config FILE --listen E`: E alone is opened; the file's ports stay closed."""
     tls_port, tcp_port, port = free_port(), free_port(), free_port()
     router_file = _tls_copy("tls-router.json5", tmp_path, certs, tls_port, tcp_port)
-    with running("router", "--config", str(router_file), "--listen", f"tcp/127.0.0.1:{port}",
-                 ready="zenoh router") as (_, line):
+    with running("router", "--config", str(router_file), "--listen", f"tcp/127.0.0.1:{port}", ready="zenoh router") as (
+        _,
+        line,
+    ):
         assert line.rstrip().endswith(f"listening on tcp/127.0.0.1:{port}"), line
         zenoh.open(client_config([f"tcp/127.0.0.1:{port}"])).close()
         with pytest.raises(zenoh.ZError):
@@ -114,8 +125,10 @@ def test_listen_replaces_the_files_endpoints(tmp_path: Path, certs: Path) -> Non
 def test_serve_listens_where_its_file_says_and_does_not_warn_on_loopback(tmp_path: Path) -> None:
     port = free_port()
     conf = tmp_path / "serve.json5"
-    conf.write_text(f'{{ mode: "router", listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }},'
-                    ' scouting: { multicast: { enabled: false } } }')
+    conf.write_text(
+        f'{{ mode: "router", listen: {{ endpoints: ["tcp/127.0.0.1:{port}"] }},'
+        " scouting: { multicast: { enabled: false } } }"
+    )
     with running("serve", "--config", str(conf), ready="armd serving") as (proc, line):
         assert f"on tcp/127.0.0.1:{port}" in line, line
         with ArmClient(f"tcp/127.0.0.1:{port}", timeout=10.0) as c:
@@ -129,8 +142,13 @@ def test_listening_on_the_network_without_a_login_is_warned_of(command: str) -> 
     TEST-NET-1 (192.0.2.1, on no machine), so nothing opens to the network: the process then
     says in one line that Zenoh cannot listen there, and exits 1."""
     endpoint = f"tcp/192.0.2.1:{free_port()}"
-    out = subprocess.run([sys.executable, "-m", "armd.cli", command, "--listen", endpoint], cwd=ROOT,
-                         capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "armd.cli", command, "--listen", endpoint],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     warnings = [line for line in out.stderr.splitlines() if line.startswith("armd: warning:")]
     assert len(warnings) == 1, out.stderr
     assert endpoint in warnings[0] and "docs/security.md" in warnings[0]

@@ -33,8 +33,12 @@ def test_sample_equals_at_time(name: str) -> None:
             P, V, A, _ = rp.sample(ts)
             for j, t in enumerate(ts):
                 p, v, a = rp.at(float(t))
-                worst = max(worst, float(np.max(np.abs(P[j] - p))), float(np.max(np.abs(V[j] - v))),
-                            float(np.max(np.abs(A[j] - a))))
+                worst = max(
+                    worst,
+                    float(np.max(np.abs(P[j] - p))),
+                    float(np.max(np.abs(V[j] - v))),
+                    float(np.max(np.abs(A[j] - a))),
+                )
     assert worst < 1e-9
 
 

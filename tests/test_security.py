@@ -38,8 +38,9 @@ def secured(tmp_path: Path) -> Iterator[dict[str, Path]]:
     router_conf = _copy("router.json5", tmp_path, port, **{"docs/security/users.txt": str(DOCS / "users.txt")})
     router = zenoh.open(zenoh.Config.from_file(str(router_conf)))
     confs = {who: _copy(f"{who}.json5", tmp_path, port) for who in ("service", "adapter", "operator", "guest")}
-    confs["intruder"] = _copy("guest.json5", tmp_path, port, "intruder.json5",
-                              **{'password: "guest"': 'password: "wrong"'})
+    confs["intruder"] = _copy(
+        "guest.json5", tmp_path, port, "intruder.json5", **{'password: "guest"': 'password: "wrong"'}
+    )
     yield confs
     router.close()
 
@@ -66,8 +67,11 @@ def test_only_trusted_users_move_arms(secured: dict[str, Path]) -> None:
             guest.stop("gupta3")
         # and a guest cannot publish a trajectory to the adapter either
         traj = operator.plan("gupta3", [0.5, 1.2, -1.0], start=start)
-        guest.session.put("armd/gupta3/trajectory", b'{"robot": "gupta3", "id": "x", "rate_hz": 50, "times": [0.0],'
-                          b' "position": [[0.5, 1.2, -1.0]], "velocity": [[0, 0, 0]], "acceleration": [[0, 0, 0]]}')
+        guest.session.put(
+            "armd/gupta3/trajectory",
+            b'{"robot": "gupta3", "id": "x", "rate_hz": 50, "times": [0.0],'
+            b' "position": [[0.5, 1.2, -1.0]], "velocity": [[0, 0, 0]], "acceleration": [[0, 0, 0]]}',
+        )
         time.sleep(0.5)
         assert np.allclose(sim.position, start) and service.stats()["served"] >= 1
         # an operator's move works
@@ -90,11 +94,18 @@ def test_a_wrong_password_cannot_connect(secured: dict[str, Path]) -> None:
 
 # -- TLS -------------------------------------------------------------------------------------------
 
-def _tls(name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int, as_name: str | None = None,
-         **replace: str) -> Path:
+
+def _tls(
+    name: str, tmp: Path, certs: Path, tls_port: int, tcp_port: int, as_name: str | None = None, **replace: str
+) -> Path:
     """A copy of a docs/security file on free ports, its certificate paths pointing at ``certs``."""
-    return _copy(name, tmp, tcp_port, as_name, **{"tls/127.0.0.1:7448": f"tls/127.0.0.1:{tls_port}",
-                                                  '"certs/': f'"{certs}/', **replace})
+    return _copy(
+        name,
+        tmp,
+        tcp_port,
+        as_name,
+        **{"tls/127.0.0.1:7448": f"tls/127.0.0.1:{tls_port}", '"certs/': f'"{certs}/', **replace},
+    )
 
 
 def test_tls(tmp_path: Path, certs: Path) -> None:
@@ -116,8 +127,15 @@ def test_tls(tmp_path: Path, certs: Path) -> None:
         assert r.status == "ok" and np.allclose(r.q, solvers.solve_ik(arm, target).q, atol=1e-12)
         client.move("gupta3", [0.4, 1.1, -1.2], wait=True, wait_timeout=10)
         assert np.allclose(sim.position, [0.4, 1.1, -1.2], atol=1e-9)
-        untrusting = _tls("tls-client.json5", tmp_path, certs, tls_port, tcp_port, "untrusting.json5",
-                          **{f'root_ca_certificate: "{certs}/ca.pem"': "verify_name_on_connect: true"})
+        untrusting = _tls(
+            "tls-client.json5",
+            tmp_path,
+            certs,
+            tls_port,
+            tcp_port,
+            "untrusting.json5",
+            **{f'root_ca_certificate: "{certs}/ca.pem"': "verify_name_on_connect: true"},
+        )
         with pytest.raises(NoReply):  # the system's CAs do not know this router
             ArmClient(config=str(untrusting), timeout=1.0)
         with pytest.raises(NoReply):  # TCP to the TLS port: no Zenoh session opens
@@ -136,14 +154,26 @@ def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
     TLS asks but cannot move; the operator moves."""
     tls_port, tcp_port = free_port(), free_port()
     users = str(DOCS / "users.txt")
-    uncomment = {"// link: { tls: { root_ca_certificate: \"ca.pem\" } },":
-                 f'link: {{ tls: {{ root_ca_certificate: "{certs}/ca.pem" }} }},',
-                 f'"tcp/127.0.0.1:{tcp_port}"': f'"tls/127.0.0.1:{tls_port}"'}
-    router_conf = _copy("router.json5", tmp_path, tcp_port, **{
-        "docs/security/users.txt": users,
-        '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },':
-        f'link: {{ tls: {{ listen_certificate: "{certs}/router.pem", listen_private_key: "{certs}/router.key" }} }},',
-        f'endpoints: ["tcp/127.0.0.1:{tcp_port}"]': f'endpoints: ["tls/127.0.0.1:{tls_port}"]'})
+    ca_commented = '// link: { tls: { root_ca_certificate: "ca.pem" } },'
+    uncomment = {
+        ca_commented: f'link: {{ tls: {{ root_ca_certificate: "{certs}/ca.pem" }} }},',
+        f'"tcp/127.0.0.1:{tcp_port}"': f'"tls/127.0.0.1:{tls_port}"',
+    }
+    router_commented = '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },'
+    router_tls = (
+        f'link: {{ tls: {{ listen_certificate: "{certs}/router.pem", listen_private_key: "{certs}/router.key" }} }},'
+    )
+
+    router_conf = _copy(
+        "router.json5",
+        tmp_path,
+        tcp_port,
+        **{
+            "docs/security/users.txt": users,
+            router_commented: router_tls,
+            f'endpoints: ["tcp/127.0.0.1:{tcp_port}"]': f'endpoints: ["tls/127.0.0.1:{tls_port}"]',
+        },
+    )
     router = zenoh.open(zenoh.Config.from_file(str(router_conf)))
     confs = {}
     for who in ("service", "adapter", "operator", "guest"):

@@ -20,16 +20,32 @@ from tests.conftest import free_port
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
 ROOT = Path(__file__).resolve().parent.parent
-LIMITS = ["--max-batch", "50", "--max-payload", "200000", "--max-samples", "5000", "--max-waypoints", "10",
-          "--deadline", "3", "--workers", "2"]  # the operator's flags, other than the defaults
+LIMITS = [
+    "--max-batch",
+    "50",
+    "--max-payload",
+    "200000",
+    "--max-samples",
+    "5000",
+    "--max-waypoints",
+    "10",
+    "--deadline",
+    "3",
+    "--workers",
+    "2",
+]  # the operator's flags, other than the defaults
 
 
 @pytest.fixture(scope="module")
 def served() -> Iterator[str]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    proc = subprocess.Popen([sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim",
-                             "--time-scale", "5", *LIMITS], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", "serve", "--listen", endpoint, "--sim", "--time-scale", "5", *LIMITS],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     assert proc.stdout is not None
     deadline = time.monotonic() + 120
     line = ""
@@ -44,8 +60,13 @@ def served() -> Iterator[str]:
 
 
 def cli(endpoint: str, *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "armd.cli", *args, "--connect", endpoint], cwd=ROOT,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "armd.cli", *args, "--connect", endpoint],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
 
 
 def test_client_against_the_process(served: str) -> None:
@@ -80,9 +101,13 @@ def test_cli_against_the_process(served: str) -> None:
 
 
 def test_cli_without_a_service() -> None:
-    r = subprocess.run([sys.executable, "-m", "armd.cli", "robots", "--connect",
-                        f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "armd.cli", "robots", "--connect", f"tcp/127.0.0.1:{free_port()}", "--timeout", "1"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 1 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -103,11 +128,22 @@ def test_operator_limits_from_the_command_line(served: str) -> None:
         with pytest.raises(ServiceError) as e:
             c.plan("gupta3", [0.5, 1.2, -1.2], via=[[0.0, 1.0, -1.0]] * 11)
         assert e.value.code == "bad_request" and e.value.field == "via"
-        assert c.call("robots")["limits"] == {"max_payload_bytes": 200_000, "max_batch": 50, "max_depth": 8,
-                                              "max_waypoints": 10, "max_samples": 5000, "deadline": 3.0}
+        assert c.call("robots")["limits"] == {
+            "max_payload_bytes": 200_000,
+            "max_batch": 50,
+            "max_depth": 8,
+            "max_waypoints": 10,
+            "max_samples": 5000,
+            "deadline": 3.0,
+        }
 
 
 def test_serve_refuses_a_nonsense_limit() -> None:
-    r = subprocess.run([sys.executable, "-m", "armd.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}",
-                        "--deadline", "0"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    r = subprocess.run(
+        [sys.executable, "-m", "armd.cli", "serve", "--listen", f"tcp/127.0.0.1:{free_port()}", "--deadline", "0"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert r.returncode == 1 and "deadline must be" in r.stderr and "Traceback" not in r.stderr

@@ -83,7 +83,7 @@ BAD = [
     ("gupta3/ik", b'{"target": [0.1, NaN, 0.1]}', "bad_request", "payload"),
     ("gupta3/ik", b'{"target": [0.1, 0.1]}', "bad_request", "target"),
     ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "aproach": "free"}', "bad_request", "aproach"),
-    ("gupta3/ik", b'{}', "bad_request", "target"),
+    ("gupta3/ik", b"{}", "bad_request", "target"),
     ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "approach": "parallel"}', "bad_request", "approach"),
     ("gupta3/ik", b'{"target": [0.1, 0.0, 0.1], "protocol": 2}', "bad_request", "protocol"),
     ("gupta3/ik", b'{"target": ' + b"[" * 50 + b"]" * 50 + b"}", "bad_request", "payload"),
@@ -128,8 +128,9 @@ def test_no_trajectory_published_for_refused_requests(client: ArmClient, router:
     assert got == []
 
 
-def test_internal_errors_are_answered_and_the_service_lives_on(client: ArmClient, service: object,
-                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+def test_internal_errors_are_answered_and_the_service_lives_on(
+    client: ArmClient, service: object, monkeypatch: pytest.MonkeyPatch
+) -> None:
     def broken(arm: object, req: object, deadline: object) -> dict[str, object]:
         raise ZeroDivisionError("a bug")
 
@@ -188,6 +189,7 @@ def test_one_arm_client_shared_by_threads(router: str, service: object) -> None:
     expected = [solvers.solve_ik(arm, t).q for t in targets]
     failures: list[str] = []
     with ArmClient(router, timeout=10.0) as c:
+
         def worker(k: int) -> None:
             for i in range(k, len(targets), 8):
                 try:
@@ -246,8 +248,9 @@ def sim(router: str, service: object) -> Iterator[SimAdapter]:
 
 def test_move_with_a_simulated_arm(client: ArmClient, sim: SimAdapter) -> None:
     events: list[dict[str, object]] = []
-    sub = client.session.declare_subscriber("armd/gupta3/events",
-                                            lambda s: events.append(json.loads(s.payload.to_bytes())))
+    sub = client.session.declare_subscriber(
+        "armd/gupta3/events", lambda s: events.append(json.loads(s.payload.to_bytes()))
+    )
     published, trajectories = collect(client, "armd/gupta3/trajectory")
     time.sleep(0.5)  # subscriptions reach the publishers through the router a moment later (no ack to wait for)
     try:
@@ -331,8 +334,9 @@ def test_a_stop_is_never_refused_from_a_state_a_hair_outside_the_limits() -> Non
     arm = robots.load("gupta3")
     book = StateBook()
     estops: list[dict[str, object]] = []
-    handlers = Handlers({"gupta3": arm}, book, Limits(), lambda a, m: None, lambda a: 1,
-                        publish_estop=lambda a, m: estops.append(m))
+    handlers = Handlers(
+        {"gupta3": arm}, book, Limits(), lambda a, m: None, lambda a: 1, publish_estop=lambda a, m: estops.append(m)
+    )
     lim = arm.limits
     q = (lim.lower + lim.upper) / 2
     q[1] = lim.upper[1] + 1.1e-3  # the shoulder decelerating onto its limit, read past it (a whole step)

@@ -39,8 +39,9 @@ class Served:
     published: list[dict[str, Any]] = field(default_factory=list)
     stops: list[dict[str, Any]] = field(default_factory=list)  # what the service put on estop
 
-    def ask(self, verb: str, req: dict[str, Any] | bytes, timeout: float = 30.0,
-            arm: str = ARM) -> tuple[str, dict[str, Any]]:
+    def ask(
+        self, verb: str, req: dict[str, Any] | bytes, timeout: float = 30.0, arm: str = ARM
+    ) -> tuple[str, dict[str, Any]]:
         """('ok' | 'err', reply object); exactly one reply is expected."""
         payload = req if isinstance(req, bytes) else json.dumps(req).encode()
         replies = list(self.session.get(f"{self.prefix}/{arm}/{verb}", payload=payload, timeout=timeout))
@@ -60,8 +61,9 @@ def served(router: str) -> Iterator[Any]:
     def make(prefix: str, limits: Limits, workers: int = 4) -> Served:
         arm = robots.load(ARM)
         session = zenoh.open(network_config(connect=[router]))
-        service = Service(session, {ARM: arm, SLOW_ARM: robots.load(SLOW_ARM)}, prefix=prefix, limits=limits,
-                          workers=workers)
+        service = Service(
+            session, {ARM: arm, SLOW_ARM: robots.load(SLOW_ARM)}, prefix=prefix, limits=limits, workers=workers
+        )
         sim = SimAdapter(session, arm, prefix=prefix, time_scale=20.0)
         s = Served(service, sim, session, prefix)
         lock = threading.Lock()
@@ -88,16 +90,18 @@ def served(router: str) -> Iterator[Any]:
 
 @pytest.fixture(scope="module")
 def tight(served: Any) -> Served:
-    s: Served = served("tight", Limits(max_payload_bytes=4000, max_batch=5, max_depth=4, max_waypoints=2,
-                                       max_samples=500))
+    s: Served = served(
+        "tight", Limits(max_payload_bytes=4000, max_batch=5, max_depth=4, max_waypoints=2, max_samples=500)
+    )
     return s
 
 
 @pytest.fixture(scope="module")
 def slow(served: Any) -> Served:
     """One worker, a 1 s deadline, and room for requests that take far longer than that."""
-    s: Served = served("slow", Limits(max_payload_bytes=3_000_000, max_batch=50_000, max_samples=1_000_000,
-                                      deadline=1.0), workers=1)
+    s: Served = served(
+        "slow", Limits(max_payload_bytes=3_000_000, max_batch=50_000, max_samples=1_000_000, deadline=1.0), workers=1
+    )
     return s
 
 
@@ -109,13 +113,21 @@ def unreachable_batch(n: int) -> dict[str, Any]:
     off = 10.0 ** rng.uniform(-6, -3, size=n)
     angle = rng.uniform(-np.pi, np.pi, size=n)
     z = rng.choice([-1.0, 1.0], size=n) * rng.uniform(0.5, 0.8, size=n)
-    return {"targets": np.round(np.column_stack([off * np.cos(angle), off * np.sin(angle), z]), 9).tolist(),
-            "approach": "perpendicular"}
+    return {
+        "targets": np.round(np.column_stack([off * np.cos(angle), off * np.sin(angle), z]), 9).tolist(),
+        "approach": "perpendicular",
+    }
 
 
 def test_limits_refuse_nonsense() -> None:
-    for bad in ({"max_batch": 0}, {"max_payload_bytes": -1}, {"max_samples": 2.5}, {"deadline": 0.0},
-                {"deadline": float("nan")}, {"deadline": True}):
+    for bad in (
+        {"max_batch": 0},
+        {"max_payload_bytes": -1},
+        {"max_samples": 2.5},
+        {"deadline": 0.0},
+        {"deadline": float("nan")},
+        {"deadline": True},
+    ):
         with pytest.raises(BadRequest) as e:
             Limits(**bad)  # type: ignore[arg-type]
         assert e.value.field == next(iter(bad)) or e.value.field == "deadline"
@@ -204,8 +216,9 @@ def test_work_that_overruns_its_deadline_is_abandoned(slow: Served) -> None:
     start = slow.sim.position.copy()
     goal = (robots.load(ARM).fk(start) + np.array([0.0, 0.05, 0.05])).tolist()
     before = len(slow.published)
-    kind, r = slow.ask("move", {"goal": {"target": goal}, "path": "line", "speed": 0.02, "rate_hz": 1000,
-                                "deadline": 0.1})
+    kind, r = slow.ask(
+        "move", {"goal": {"target": goal}, "path": "line", "speed": 0.02, "rate_hz": 1000, "deadline": 0.1}
+    )
     assert kind == "err" and r["code"] == "deadline" and r["stage"] == "working", r
     time.sleep(0.3)
     assert len(slow.published) == before and np.array_equal(slow.sim.position, start)
@@ -219,8 +232,9 @@ def test_work_that_overruns_its_deadline_is_abandoned(slow: Served) -> None:
 
 def test_a_request_queued_past_its_deadline_is_not_worked_on(slow: Served) -> None:
     late_before = slow.service.stats()["late"]
-    busy = slow.session.get(f"{slow.prefix}/{SLOW_ARM}/ik", payload=json.dumps(unreachable_batch(20_000)).encode(),
-                            timeout=30.0)  # occupies the one worker until its 1 s deadline
+    busy = slow.session.get(
+        f"{slow.prefix}/{SLOW_ARM}/ik", payload=json.dumps(unreachable_batch(20_000)).encode(), timeout=30.0
+    )  # occupies the one worker until its 1 s deadline
     wait_for(lambda: slow.service.stats()["in_flight"] >= 1, what="the batch to arrive")
     # a joint plan (fk and one-target IK are answered at once, without queueing) waits behind it, past its 0.2 s
     kind, r = slow.ask("plan", {"goal": [0.5, 1.0, -1.0], "start": [0, 1, -1], "deadline": 0.2})
@@ -237,11 +251,11 @@ def test_a_request_queued_past_its_deadline_is_not_worked_on(slow: Served) -> No
 def test_stop_does_not_wait_behind_the_queue(slow: Served) -> None:
     """The one worker is busy for a second and more requests queue behind it: a stop is
     answered (and published) while the busy request is still being worked on."""
-    busy = slow.session.get(f"{slow.prefix}/{SLOW_ARM}/ik", payload=json.dumps(unreachable_batch(20_000)).encode(),
-                            timeout=30.0)
+    busy = slow.session.get(
+        f"{slow.prefix}/{SLOW_ARM}/ik", payload=json.dumps(unreachable_batch(20_000)).encode(), timeout=30.0
+    )
     wait_for(lambda: slow.service.stats()["in_flight"] >= 1, what="the batch to arrive")
-    queued = [slow.session.get(f"{slow.prefix}/{ARM}/fk", payload=b'{"q": [0, 1, -1]}', timeout=30.0)
-              for _ in range(3)]
+    queued = [slow.session.get(f"{slow.prefix}/{ARM}/fk", payload=b'{"q": [0, 1, -1]}', timeout=30.0) for _ in range(3)]
     before = len(slow.stops)
     kind, r = slow.ask("stop", {})
     assert kind == "ok", r

@@ -268,8 +268,13 @@ def test_stop_is_idempotent_and_ends_the_thread() -> None:
 
 def test_run_as_a_program_until_ctrl_c() -> None:
     root = Path(__file__).resolve().parent.parent
-    proc = subprocess.Popen([sys.executable, "-m", "armd.adapters.emulators.ssc32"], cwd=root, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.adapters.emulators.ssc32"],
+        cwd=root,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     watchdog = threading.Timer(10, proc.kill)  # a hung program ends, and its readline() returns ""
     watchdog.start()
     try:
@@ -360,8 +365,10 @@ def test_a_host_faster_than_the_link_falls_behind() -> None:
 def test_query_delay_delays_the_reply(query: bytes, size: int) -> None:
     delays = {}
     for query_delay in (0.0, 0.05):
-        with SSC32Emulator(baud=115200, query_delay=query_delay) as emu, \
-                serial.Serial(emu.port, 115200, timeout=1) as ser:
+        with (
+            SSC32Emulator(baud=115200, query_delay=query_delay) as emu,
+            serial.Serial(emu.port, 115200, timeout=1) as ser,
+        ):
             send(ser, emu, b"#0P1500\r")
             written = time.monotonic()
             ser.write(query)
@@ -406,8 +413,12 @@ def test_power_cycle_turns_everything_off(fake: tuple[SSC32Emulator, serial.Seri
     assert emu.pulse(0) == 1800.0
     assert emu.segments(0)[-2:] == [(100.5, 100.5, 1500.0, 0.0), (100.5, 100.5, 0.0, 1800.0)]
     clock.now += 0.1
-    assert emu.segments(1) == [(100.0, 100.0, 0.0, 1200.0), (100.0, 100.5, 1200.0, 1200.0),
-                               (100.5, 100.5, 1200.0, 0.0), (100.5, 100.6, 0.0, 0.0)]
+    assert emu.segments(1) == [
+        (100.0, 100.0, 0.0, 1200.0),
+        (100.0, 100.5, 1200.0, 1200.0),
+        (100.5, 100.5, 1200.0, 0.0),
+        (100.5, 100.6, 0.0, 0.0),
+    ]
 
 
 def test_reopening_the_port_keeps_the_pulses(emu: SSC32Emulator) -> None:
@@ -433,8 +444,17 @@ def test_the_trace_is_the_output(fake: tuple[SSC32Emulator, serial.Serial, FakeC
     emu, ser, clock = fake
     rng = random.Random(7)
     samples: list[tuple[float, dict[int, float]]] = []
-    script = [b"#0P1000#1P1500\r", b"#0P2000#1P1000T1000\r", b"#0P1000T250\r", b"#1P2000S400\r",
-              b"STOP1\r", b"#0P0\r", b"#0P1200\r", b"#0P1300#1P1400T300\r", b"#0P1500\r"]
+    script = [
+        b"#0P1000#1P1500\r",
+        b"#0P2000#1P1000T1000\r",
+        b"#0P1000T250\r",
+        b"#1P2000S400\r",
+        b"STOP1\r",
+        b"#0P0\r",
+        b"#0P1200\r",
+        b"#0P1300#1P1400T300\r",
+        b"#0P1500\r",
+    ]
     times = [0.0, 0.2, 0.7, 1.0, 1.5, 2.0, 2.2, 2.5, 2.9]  # [s] after 100.0
     for cmd, t in zip(script, times, strict=True):
         while clock.now + 0.06 < 100.0 + t:  # samples between the commands, at random times
@@ -454,14 +474,19 @@ def test_the_trace_is_the_output(fake: tuple[SSC32Emulator, serial.Serial, FakeC
         for t, pulses in samples:
             assert value_at(trace, t) == pytest.approx(pulses[ch], abs=1e-9), (ch, t)
     speeds = [(round(t0 - 100, 6), (p1 - p0) / (t1 - t0)) for t0, t1, p0, p1 in emu.segments(0) if t1 > t0]
-    assert speeds[:4] == [(0.0, 0.0), (0.2, pytest.approx(1000.0)), (0.7, pytest.approx(-2000.0)),
-                          (0.95, 0.0)]
+    assert speeds[:4] == [(0.0, 0.0), (0.2, pytest.approx(1000.0)), (0.7, pytest.approx(-2000.0)), (0.95, 0.0)]
     jumps = [(round(t0 - 100, 6), p0, p1) for t0, t1, p0, p1 in emu.segments(0) if t1 == t0]
     assert jumps == [(0.0, 0.0, 1000.0), (2.0, 1000.0, 0.0), (2.2, 0.0, 1200.0), (2.9, 1300.0, 1500.0)]
     # ch1: 1500 -> 1000 in 1 s from 0.2; at 1.0 (1100) S400 toward 2000; stopped at 1.5 (1300); T300 to 1400
     speeds1 = [(round(t0 - 100, 6), (p1 - p0) / (t1 - t0)) for t0, t1, p0, p1 in emu.segments(1) if t1 > t0]
-    assert speeds1 == [(0.0, 0.0), (0.2, pytest.approx(-500.0)), (1.0, pytest.approx(400.0)),
-                       (1.5, 0.0), (2.5, pytest.approx((1400 - 1300) / 0.3)), (2.8, 0.0)]
+    assert speeds1 == [
+        (0.0, 0.0),
+        (0.2, pytest.approx(-500.0)),
+        (1.0, pytest.approx(400.0)),
+        (1.5, 0.0),
+        (2.5, pytest.approx((1400 - 1300) / 0.3)),
+        (2.8, 0.0),
+    ]
 
 
 def test_a_host_at_the_wrong_baud_rate_gets_nothing() -> None:

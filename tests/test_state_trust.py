@@ -32,16 +32,28 @@ def forger(router: str) -> Iterator[zenoh.Session]:
 
 def _state(q: list[float], adapter: str, seq: int, **extra: object) -> bytes:
     n = len(q)
-    return json.dumps({"robot": ARM, "adapter": adapter, "seq": seq, "position": q, "velocity": [0.0] * n,
-                       "acceleration": [0.0] * n, "moving": False, "homed": True, **extra}).encode()
+    return json.dumps(
+        {
+            "robot": ARM,
+            "adapter": adapter,
+            "seq": seq,
+            "position": q,
+            "velocity": [0.0] * n,
+            "acceleration": [0.0] * n,
+            "moving": False,
+            "homed": True,
+            **extra,
+        }
+    ).encode()
 
 
 def _ignored(service: object) -> int:
     return int(service.stats()["states_ignored"])  # type: ignore[attr-defined]
 
 
-def test_a_state_from_no_live_adapter_is_ignored_and_counted(client: ArmClient, service: object,
-                                                             forger: zenoh.Session) -> None:
+def test_a_state_from_no_live_adapter_is_ignored_and_counted(
+    client: ArmClient, service: object, forger: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     far = (np.array(arm.neutral) + 0.5).tolist()
     before = _ignored(service)
@@ -53,15 +65,20 @@ def test_a_state_from_no_live_adapter_is_ignored_and_counted(client: ArmClient, 
     assert s["source"] != "adapter" and not np.allclose(s["position"], far)
 
 
-def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(client: ArmClient, service: object,
-                                                                       adapter_session: zenoh.Session,
-                                                                       forger: zenoh.Session) -> None:
+def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, forger: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     start = (np.array(arm.neutral) + 0.1).tolist()
     adapter = SimAdapter(adapter_session, arm, start=np.array(start))
     try:
-        wait_for(lambda: client.state(ARM)["source"] == "adapter"
-                 and np.allclose(client.state(ARM)["position"], start, atol=1e-9), what="the adapter's state")
+        wait_for(
+            lambda: (
+                client.state(ARM)["source"] == "adapter"
+                and np.allclose(client.state(ARM)["position"], start, atol=1e-9)
+            ),
+            what="the adapter's state",
+        )
         before = _ignored(service)
         far = (np.array(arm.neutral) - 0.6).tolist()
         outside = (np.array(arm.limits.upper) + 0.5).tolist()
@@ -70,8 +87,9 @@ def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(client: A
         forger.put(f"armd/{ARM}/state", _state(far, adapter.id, 10**9))
         forger.put(f"armd/{ARM}/state", _state(start, adapter.id, 0))
         forger.put(f"armd/{ARM}/state", _state(outside, adapter.id, 10**9 + 1))
-        forger.put(f"armd/{ARM}/state", _state(start, adapter.id, 10**9 + 2,
-                                               velocity=(arm.limits.velocity * 10).tolist()))
+        forger.put(
+            f"armd/{ARM}/state", _state(start, adapter.id, 10**9 + 2, velocity=(arm.limits.velocity * 10).tolist())
+        )
         forger.put(f"armd/{ARM}/state", b'{"adapter": "x", "seq": 1, "position": [1e999]}')
         wait_for(lambda: _ignored(service) >= before + 5, what="the forgeries ignored")
         for _ in range(10):
@@ -84,8 +102,7 @@ def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(client: A
         adapter.close()
 
 
-def test_a_gone_adapters_state_is_forgotten(client: ArmClient, service: object,
-                                            adapter_session: zenoh.Session) -> None:
+def test_a_gone_adapters_state_is_forgotten(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
     arm = robots.load(ARM)
     adapter = SimAdapter(adapter_session, arm)
     wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
@@ -94,8 +111,7 @@ def test_a_gone_adapters_state_is_forgotten(client: ArmClient, service: object,
     assert client.state(ARM)["source"] != "adapter"
 
 
-def test_a_token_alone_does_not_make_a_move_succeed(client: ArmClient, service: object,
-                                                    forger: zenoh.Session) -> None:
+def test_a_token_alone_does_not_make_a_move_succeed(client: ArmClient, service: object, forger: zenoh.Session) -> None:
     """A liveliness token with nothing behind it: the move waits for an acceptance that never
     comes, answers no_adapter, and sends an estop so that a late adapter does not move the arm."""
     arm = robots.load(ARM)
@@ -115,8 +131,9 @@ def test_a_token_alone_does_not_make_a_move_succeed(client: ArmClient, service: 
         token.undeclare()
 
 
-def test_a_move_names_the_adapter_that_accepted_it(client: ArmClient, service: object,
-                                                   adapter_session: zenoh.Session) -> None:
+def test_a_move_names_the_adapter_that_accepted_it(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     arm = robots.load(ARM)
     adapter = SimAdapter(adapter_session, arm)
     try:
@@ -128,7 +145,8 @@ def test_a_move_names_the_adapter_that_accepted_it(client: ArmClient, service: o
 
 
 def test_a_move_planned_from_a_late_report_is_planned_again_from_the_adapters_word(
-        client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
     """The service's picture of the arm is only as fresh as the last report (late on a loaded
     machine; here an adapter that reports about once a second). A move planned from an old
     report is refused by the adapter (`start_mismatch`, with where the arm is); the service plans
@@ -142,8 +160,10 @@ def test_a_move_planned_from_a_late_report_is_planned_again_from_the_adapters_wo
         for attempt in range(6):  # until the last report before arrival was taken on the way
             goal = goals[attempt % 2]
             first = client.move(ARM, goal)
-            wait_for(lambda i=first.id: any(e.get("event") == "done" and e.get("id") == i for e in events),
-                     what="the first move done")
+            wait_for(
+                lambda i=first.id: any(e.get("event") == "done" and e.get("id") == i for e in events),
+                what="the first move done",
+            )
             believed = client.state(ARM)
             if believed["source"] == "adapter" and not np.allclose(believed["position"], goal, atol=0.05):
                 break
@@ -154,8 +174,10 @@ def test_a_move_planned_from_a_late_report_is_planned_again_from_the_adapters_wo
         refused = [e for e in events if e.get("event") == "rejected" and e.get("id") != second["id"]]
         assert refused and refused[-1]["error"]["code"] == "start_mismatch"  # type: ignore[index]
         assert np.allclose(refused[-1]["error"]["state"]["position"], goal, atol=0.03)  # type: ignore[index]
-        wait_for(lambda: any(e.get("event") == "accepted" and e.get("id") == second["id"] for e in events),
-                 what="the second plan accepted")
+        wait_for(
+            lambda: any(e.get("event") == "accepted" and e.get("id") == second["id"] for e in events),
+            what="the second plan accepted",
+        )
     finally:
         sub.undeclare()  # type: ignore[attr-defined]
         adapter.close()

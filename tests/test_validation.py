@@ -34,15 +34,21 @@ REFUSED = [
     ("plan", '{"goal": {"target": [0.2, 0, 0.1]}, "path": "line", "speed": 1e-300}', "speed"),
     ("move", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "speed": 1e-300}', "speed"),
     # were silently accepted
-    ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "start": {"position": ' + N
-     + ', "jerk": [0, 0, 0, 0, 0]}}', "start.jerk"),
+    (
+        "plan",
+        '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "start": {"position": ' + N + ', "jerk": [0, 0, 0, 0, 0]}}',
+        "start.jerk",
+    ),
     ("plan", '{"goal": {"target": [0.2, 0, 0.1], "q": [0.3, 1.4, -1.2, 0.2, 0]}}', "goal.q"),
     ("plan", '{"goal": {"q": [0.3, 1.4, -1.2, 0.2, 0], "approach": "free"}}', "goal.approach"),
     ("plan", '{"goal": {"q": [0.3, 1.4, -1.2, 0.2, 0], "zz": 1}}', "goal.zz"),
     ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "via": [{"q": [0, 1.2, -1, 0, 0], "x": 1}]}', "via[0].x"),
     ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "start": [true, 1.5, -1.5, 0, 0]}', "start[0]"),
-    ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "start": {"position": ' + N
-     + ', "velocity": [false, 0, 0, 0, 0]}}', "start.velocity[0]"),
+    (
+        "plan",
+        '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "start": {"position": ' + N + ', "velocity": [false, 0, 0, 0, 0]}}',
+        "start.velocity[0]",
+    ),
     ("ik", '{"target": {"sensor": "et_left", "range": 0.1, "extra": 1}}', "target.extra"),
     ("ik", '{"target": {"sensor": 5, "range": 0.1}}', "target.sensor"),
     ("ik", '{"target": [true, 0, 0]}', "target[0]"),
@@ -55,7 +61,7 @@ REFUSED = [
     ("fk", '{"q": [true, false, 0, 0, 0]}', "q[0]"),
     ("fk", '{"q": [0, 1.2, -1, 0, true]}', "q[4]"),
     ("fk", '{"q": [1e300, 1.2, -1, 0, 0]}', "q[0]"),
-    ("fk", '{"q": [' + HUGE_INT + ', 1.2, -1, 0, 0]}', "q[0]"),
+    ("fk", '{"q": [' + HUGE_INT + ", 1.2, -1, 0, 0]}", "q[0]"),
     ("fk", '{"q": [18446744073709551616, 1.2, -1, 0, 0]}', "q[0]"),
     ("gripper", '{"opening": "0.5"}', "opening"),
     ("gripper", '{"opening": true}', "opening"),
@@ -80,15 +86,22 @@ def test_refused_naming_the_field(client: ArmClient, verb: str, payload: str, fi
     assert reply["field"] == field and field.split("[")[0].split(".")[-1] in reply["message"], reply
 
 
-@pytest.mark.parametrize(("verb", "payload"), [
-    ("fk", '{"q": [0, 1.2, -1, 0, 0], "protocol": null}'),  # null is absent, the protocol too
-    ("ik", '{"target": {"sensor": "et_left", "range": 0.1, "bearing": null}}'),  # at every level
-    ("ik", '{"target": [0.25, 0.05, 0.12], "targets": null}'),
-    ("plan", '{"goal": {"target": [0.25, 0.05, 0.15], "approach": null}, "start": {"position": ' + N
-     + ', "velocity": null}}'),
-    ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "speed": 1e-6}'),  # the floor: Ruckig's refusal, not the shape's
-    ("fk", '{"q": [0, 1.2, -1, 0, 1e-300]}'),  # tiny is a number
-])
+@pytest.mark.parametrize(
+    ("verb", "payload"),
+    [
+        ("fk", '{"q": [0, 1.2, -1, 0, 0], "protocol": null}'),  # null is absent, the protocol too
+        ("ik", '{"target": {"sensor": "et_left", "range": 0.1, "bearing": null}}'),  # at every level
+        ("ik", '{"target": [0.25, 0.05, 0.12], "targets": null}'),
+        (
+            "plan",
+            '{"goal": {"target": [0.25, 0.05, 0.15], "approach": null}, "start": {"position": '
+            + N
+            + ', "velocity": null}}',
+        ),
+        ("plan", '{"goal": [0.3, 1.4, -1.2, 0.2, 0], "speed": 1e-6}'),  # the floor: Ruckig's refusal, not the shape's
+        ("fk", '{"q": [0, 1.2, -1, 0, 1e-300]}'),  # tiny is a number
+    ],
+)
 def test_valid_shapes_are_not_refused_by_the_shape(client: ArmClient, verb: str, payload: str) -> None:
     kind, reply = raw(client, f"insomniac/{verb}", payload)
     assert kind == "ok" or (reply["code"] != "internal" and "must be" not in reply["message"]), reply
@@ -113,8 +126,9 @@ def test_joint_vectors_have_one_value_per_joint() -> None:
     assert e.value.field == "q" and "yaw, shoulder, elbow" in e.value.message
 
 
-@pytest.mark.parametrize("v", [True, False, "1", None, [], {}, float("nan"), float("inf"), -float("inf"),
-                               10**400, -(10**400), 10**30, 1e300])
+@pytest.mark.parametrize(
+    "v", [True, False, "1", None, [], {}, float("nan"), float("inf"), -float("inf"), 10**400, -(10**400), 10**30, 1e300]
+)
 def test_real_refuses_what_is_not_a_finite_json_number_in_range(v: object) -> None:
     with pytest.raises(BadRequest) as e:
         real(v, "x.y", -100.0, 100.0)
@@ -134,6 +148,5 @@ def test_the_protocols_words_are_the_solvers_and_planners() -> None:
 
 
 def test_null_is_absent_at_every_level() -> None:
-    out = check(PLAN, {"goal": {"target": [0.2, 0.0, 0.1], "approach": None}, "speed": None},
-                ("a", "b", "c", "d", "e"))
+    out = check(PLAN, {"goal": {"target": [0.2, 0.0, 0.1], "approach": None}, "speed": None}, ("a", "b", "c", "d", "e"))
     assert out == {"goal": {"target": [0.2, 0.0, 0.1]}}

@@ -39,12 +39,23 @@ ROOT = Path(__file__).resolve().parent.parent
 W, H = 800, 600
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
 needs_chromium = pytest.mark.skipif(
-    CHROMIUM is None, reason="no Chromium to render the viewer page: apt-get install chromium (Debian/Ubuntu)")
+    CHROMIUM is None, reason="no Chromium to render the viewer page: apt-get install chromium (Debian/Ubuntu)"
+)
 # Headless, offline (without the networking flags it hangs on a closed network), WebGL on the CPU.
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--use-angle=swiftshader", "--enable-unsafe-swiftshader", f"--window-size={W},{H}",
-                  "--virtual-time-budget=3000"]
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    f"--window-size={W},{H}",
+    "--virtual-time-budget=3000",
+]
 
 Image = NDArray[np.int64]
 
@@ -53,8 +64,12 @@ def screenshot(url: str, out: Path) -> Image:
     """The page at ``url`` as Chromium draws it: (H, W, 3) RGB in 0..255."""
     assert CHROMIUM is not None
     with tempfile.TemporaryDirectory() as profile:
-        run = subprocess.run([CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}", url],
-                             capture_output=True, text=True, timeout=60)
+        run = subprocess.run(
+            [CHROMIUM, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--screenshot={out}", url],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
     assert out.is_file(), f"chromium wrote no screenshot (exit {run.returncode}): {run.stderr[-2000:]}"
     return np.asarray(np.round(imread(out)[..., :3] * 255), dtype=np.int64)
 
@@ -94,9 +109,20 @@ def arm_points(arm: robots.Robot, q: object) -> list[NDArray[np.float64]]:
 def state_message(arm: robots.Robot, q: object) -> bytes:
     """A state exactly as an adapter publishes it (adapters/base.py, Adapter._publish_state)."""
     zeros = [0.0] * arm.nq
-    return encode({"robot": arm.name, "adapter": "test0000", "kind": "sim", "position": list(map(float, q)),
-                   "velocity": zeros, "acceleration": zeros, "moving": False, "trajectory": None, "fault": None,
-                   "time": time.time()})
+    return encode(
+        {
+            "robot": arm.name,
+            "adapter": "test0000",
+            "kind": "sim",
+            "position": list(map(float, q)),
+            "velocity": zeros,
+            "acceleration": zeros,
+            "moving": False,
+            "trajectory": None,
+            "fault": None,
+            "time": time.time(),
+        }
+    )
 
 
 @pytest.fixture
@@ -115,12 +141,14 @@ def insomniac_view(view_session: zenoh.Session) -> Iterator[tuple[ArmView, Zenoh
 
 @needs_chromium
 def test_the_arm_is_drawn_where_fk_puts_it_and_follows_the_state(
-        insomniac_view: tuple[ArmView, ZenohFeed], adapter_session: zenoh.Session, tmp_path: Path) -> None:
+    insomniac_view: tuple[ArmView, ZenohFeed], adapter_session: zenoh.Session, tmp_path: Path
+) -> None:
     view, _ = insomniac_view
     arm = view.robot
     pub = adapter_session.declare_publisher("armd/insomniac/state", encoding=zenoh.Encoding.APPLICATION_JSON)
-    a = np.array([0.8, 1.9, -1.2, -0.6, 0.0])   # turned left, forearm reaching forward and up
+    a = np.array([0.8, 1.9, -1.2, -0.6, 0.0])  # turned left, forearm reaching forward and up
     b = np.array([-1.2, 1.0, -0.4, -0.9, 0.5])  # turned right, leaning far forward
+
     def shown(q: NDArray[np.float64]) -> bool:
         pub.put(state_message(arm, q))  # as an adapter does, again and again
         return bool(np.allclose(view.shown, q))
@@ -146,8 +174,9 @@ def test_the_arm_is_drawn_where_fk_puts_it_and_follows_the_state(
         points = arm_points(arm, q)
         for p in (points[3], points[-1]):
             xy = project(view, p)
-            assert distance_to(masks[name], xy) <= 1.0 and distance_to(masks[other], xy) > 3.0, \
+            assert distance_to(masks[name], xy) <= 1.0 and distance_to(masks[other], xy) > 3.0, (
                 f"pose {name}: the point {p.round(3)} is not drawn in {name} only"
+            )
     changed = float(np.any(np.abs(shots["a"] - shots["b"]) > 24, axis=-1).mean())
     assert changed > 0.005, f"only {changed:.4f} of the picture changed between the poses"
     # no trajectory yet: nothing of the path's or the target's colour
@@ -156,18 +185,25 @@ def test_the_arm_is_drawn_where_fk_puts_it_and_follows_the_state(
 
 
 @needs_chromium
-def test_a_move_draws_its_tool_path_and_target(insomniac_view: tuple[ArmView, ZenohFeed], client: object,
-                                               adapter_session: zenoh.Session, tmp_path: Path) -> None:
+def test_a_move_draws_its_tool_path_and_target(
+    insomniac_view: tuple[ArmView, ZenohFeed], client: object, adapter_session: zenoh.Session, tmp_path: Path
+) -> None:
     view, feed = insomniac_view
     arm = view.robot
     sim = SimAdapter(adapter_session, arm, time_scale=10.0)
     try:
         wait_for(lambda: feed.states > 0, 10.0, "the simulated arm's state")
         target = [0.2, 0.15, 0.1]
-        reply = client.move("insomniac", {"target": target, "approach": "perpendicular"},  # type: ignore[attr-defined]
-                            wait=True)
-        wait_for(lambda: feed.trajectories == 1 and np.allclose(view.shown, reply.goal, atol=2e-3), 10.0,
-                 "the view to draw the trajectory and the arm at its goal")
+        reply = client.move(
+            "insomniac",
+            {"target": target, "approach": "perpendicular"},  # type: ignore[attr-defined]
+            wait=True,
+        )
+        wait_for(
+            lambda: feed.trajectories == 1 and np.allclose(view.shown, reply.goal, atol=2e-3),
+            10.0,
+            "the view to draw the trajectory and the arm at its goal",
+        )
     finally:
         sim.close()
     with_arm = screenshot(view.url, tmp_path / "moved.png")
@@ -190,8 +226,9 @@ def test_a_move_draws_its_tool_path_and_target(insomniac_view: tuple[ArmView, Ze
     # a trajectory that carries its Cartesian target has it drawn there, not at its last sample's tool point
     traj = planning.plan(arm, reply.goal, arm.neutral)
     explicit = arm.fk(arm.neutral) + np.array([0.0, 0.0, 0.08])
-    adapter_session.put("armd/insomniac/trajectory",
-                        encode({**traj.to_dict(), "id": "t1", "kind": "move", "target": explicit.tolist()}))
+    adapter_session.put(
+        "armd/insomniac/trajectory", encode({**traj.to_dict(), "id": "t1", "kind": "move", "target": explicit.tolist()})
+    )
     wait_for(lambda: feed.trajectories == 2 and view.flush(1.0), 10.0, "the second trajectory")
     green = colored(screenshot(view.url, tmp_path / "explicit.png"), TARGET_COLOR)
     ys, xs = np.nonzero(green)
@@ -200,7 +237,8 @@ def test_a_move_draws_its_tool_path_and_target(insomniac_view: tuple[ArmView, Ze
 
 
 def test_states_are_drawn_at_most_at_the_rate_and_bad_ones_ignored(
-        insomniac_view: tuple[ArmView, ZenohFeed], adapter_session: zenoh.Session) -> None:
+    insomniac_view: tuple[ArmView, ZenohFeed], adapter_session: zenoh.Session
+) -> None:
     view, feed = insomniac_view
     arm = view.robot
     pub = adapter_session.declare_publisher("armd/insomniac/state", encoding=zenoh.Encoding.APPLICATION_JSON)
@@ -249,9 +287,14 @@ def test_bad_input_is_refused(insomniac_view: tuple[ArmView, ZenohFeed]) -> None
 
 
 def armd_view(*args: str) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "armd.cli", "view", *args], cwd=ROOT, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    return subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", "view", *args],
+        cwd=ROOT,
+        text=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
 
 
 def test_armd_view_serves_the_page_and_stops_on_ctrl_c(router: str) -> None:
@@ -278,4 +321,3 @@ def test_armd_view_unknown_robot_is_the_typed_error() -> None:
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 1
     assert "armd: error: unknown robot 'nosuch'; the catalogue has: desk4, gupta3, insomniac, sg5ut" in err
-

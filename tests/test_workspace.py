@@ -26,8 +26,7 @@ def _colour_at(img: np.ndarray, drawn: Drawn, side: bool, h: float, v: float) ->
     box, limits = (drawn.side_box, drawn.side_limits) if side else (drawn.top_box, drawn.top_limits)
     row, col = Drawn.pixel(box, limits, h, v, img.shape[0])
     rgb = img[row, col, :3]
-    name, dist = min(((k, float(np.max(np.abs(rgb - np.array(c))))) for k, c in COLOURS.items()),
-                     key=lambda kv: kv[1])
+    name, dist = min(((k, float(np.max(np.abs(rgb - np.array(c))))) for k, c in COLOURS.items()), key=lambda kv: kv[1])
     return name if dist < 0.03 else None  # a line drawn over the cell, say: not a fill colour
 
 
@@ -54,8 +53,10 @@ def test_the_picture_agrees_with_the_ik(name: str, tmp_path: Path) -> None:
         inside = np.argwhere(view.any_pitch)
         outside = np.argwhere(~view.any_pitch)
         assert len(inside) and len(outside)
-        picks = [*inside[rng.choice(len(inside), 14, replace=False)],
-                 *outside[rng.choice(len(outside), 6, replace=False)]]
+        picks = [
+            *inside[rng.choice(len(inside), 14, replace=False)],
+            *outside[rng.choice(len(outside), 6, replace=False)],
+        ]
         for i, j in picks:
             h, v = float(view.horizontal[j]), float(view.vertical[i])
             points = [[h, ws.lateral, v]] if side else [[h, v, float(z)] for z in ws.heights]
@@ -66,8 +67,10 @@ def test_the_picture_agrees_with_the_ik(name: str, tmp_path: Path) -> None:
             if seen is None:
                 unreadable += 1
                 continue
-            assert seen == expected, f"{name} {'side' if side else 'top'} cell at ({h:.3f}, {v:.3f}): " \
-                                     f"picture says {seen}, solve_ik says {expected}"
+            assert seen == expected, (
+                f"{name} {'side' if side else 'top'} cell at ({h:.3f}, {v:.3f}): "
+                f"picture says {seen}, solve_ik says {expected}"
+            )
             checked[seen] += 1
     assert unreadable <= 4
     assert checked["A"] + checked["B"] >= 20 and checked["none"] >= 8
@@ -95,8 +98,15 @@ def test_cli_writes_the_png(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert "sg5ut workspace" in line and "A " in line and "B " in line
 
 
-@pytest.mark.parametrize("argv", [["workspace", "nosuch"], ["workspace", "sg5ut", "--step", "0"],
-                                  ["workspace", "sg5ut", "--step", "1"], ["workspace", "sg5ut", "--heights", "0"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["workspace", "nosuch"],
+        ["workspace", "sg5ut", "--step", "0"],
+        ["workspace", "sg5ut", "--step", "1"],
+        ["workspace", "sg5ut", "--heights", "0"],
+    ],
+)
 def test_cli_bad_input_is_an_error(argv: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "ws.png"
     assert main([*argv, "--out", str(out)]) == 1

@@ -69,8 +69,9 @@ def test_a_file_is_used_as_it_is_and_flags_replace_its_endpoints() -> None:
     conf = network_config(config_file=tls_router, mode="router")  # `armd router --config tls-router.json5`
     assert endpoints(conf, "listen") == ["tls/127.0.0.1:7448", "tcp/127.0.0.1:7447"]
     assert json.loads(conf.get_json("transport/link/tls/listen_certificate")) == "certs/router.pem"
-    conf = network_config(config_file=tls_router, listen=["tcp/127.0.0.1:9001"], connect=["tcp/127.0.0.1:9002"],
-                          mode="router")
+    conf = network_config(
+        config_file=tls_router, listen=["tcp/127.0.0.1:9001"], connect=["tcp/127.0.0.1:9002"], mode="router"
+    )
     assert endpoints(conf, "listen") == ["tcp/127.0.0.1:9001"]
     assert endpoints(conf, "connect") == ["tcp/127.0.0.1:9002"]
     assert json.loads(conf.get_json("transport/link/tls/listen_certificate")) == "certs/router.pem"  # kept
@@ -78,8 +79,11 @@ def test_a_file_is_used_as_it_is_and_flags_replace_its_endpoints() -> None:
     assert endpoints(conf, "connect") == ["tls/127.0.0.1:7448"] and endpoints(conf, "listen") == []
 
 
-@pytest.mark.parametrize("kwargs", [{}, {"mode": "router"}, {"connect": ["tcp/127.0.0.1:9002"], "mode": "router"}],
-                         ids=["serve", "router", "router-connect"])
+@pytest.mark.parametrize(
+    "kwargs",
+    [{}, {"mode": "router"}, {"connect": ["tcp/127.0.0.1:9002"], "mode": "router"}],
+    ids=["serve", "router", "router-connect"],
+)
 def test_without_a_file_a_router_listens_on_loopback(kwargs: dict[str, Any]) -> None:
     """Never Zenoh's default for a router, tcp/[::]:7447 (every interface)."""
     assert endpoints(network_config(**kwargs), "listen") == [DEFAULT_ENDPOINT]
@@ -87,12 +91,23 @@ def test_without_a_file_a_router_listens_on_loopback(kwargs: dict[str, Any]) -> 
 
 # -- who is warned: listening beyond loopback with nobody logging in ------------------------------
 
-@pytest.mark.parametrize(("endpoint", "loopback"), [
-    ("tcp/127.0.0.1:7447", True), ("tcp/127.8.9.10:7447", True), ("tcp/[::1]:7447", True),
-    ("tls/localhost:7448", True), ("udp/127.0.0.1:7447#iface=lo", True),
-    ("tcp/0.0.0.0:7447", False), ("tcp/[::]:7447", False), ("tls/192.168.1.20:7448", False),
-    ("tcp/lab-server.example:7447", False), ("tcp/10.0.0.1:7447?prio=1", False),
-    ("unixsock-stream//tmp/armd.sock", None)])
+
+@pytest.mark.parametrize(
+    ("endpoint", "loopback"),
+    [
+        ("tcp/127.0.0.1:7447", True),
+        ("tcp/127.8.9.10:7447", True),
+        ("tcp/[::1]:7447", True),
+        ("tls/localhost:7448", True),
+        ("udp/127.0.0.1:7447#iface=lo", True),
+        ("tcp/0.0.0.0:7447", False),
+        ("tcp/[::]:7447", False),
+        ("tls/192.168.1.20:7448", False),
+        ("tcp/lab-server.example:7447", False),
+        ("tcp/10.0.0.1:7447?prio=1", False),
+        ("unixsock-stream//tmp/armd.sock", None),
+    ],
+)
 def test_is_loopback(endpoint: str, loopback: bool | None) -> None:
     assert is_loopback(endpoint) is loopback
 
@@ -118,14 +133,22 @@ def test_a_login_or_client_certificates_silence_the_warning() -> None:
     presents = 'transport: {auth: {usrpwd: {user: "armd-service", password: "x"}}}'
     assert unauthenticated_endpoints(_conf(anyone % presents)) == ["tcp/0.0.0.0:7447", "tls/0.0.0.0:7448"]
     # TLS alone proves the router to its clients, not the clients to it; mutual TLS does, on TLS links only
-    mtls = 'transport: {link: {tls: {enable_mtls: true}}}'
+    mtls = "transport: {link: {tls: {enable_mtls: true}}}"
     assert unauthenticated_endpoints(_conf(anyone % mtls)) == ["tcp/0.0.0.0:7447"]
     # a router file that names no endpoint gets Zenoh's default, every interface
     assert unauthenticated_endpoints(_conf('{mode: "router"}')) == ["tcp/[::]:7447"]
     # the shipped files: the TLS router listens on loopback only, as shipped; the router with the
     # login may listen on every interface (docs/security.md, docs/deployment.md)
     assert exposure_warning(network_config(config_file=str(DOCS / "tls-router.json5"), mode="router")) is None
-    assert exposure_warning(network_config(config_file=str(DOCS / "router.json5"), listen=["tcp/0.0.0.0:7447"],
-                                           mode="router")) is None
-    assert exposure_warning(network_config(config_file=str(DOCS / "tls-router.json5"), listen=["tls/0.0.0.0:7448"],
-                                           mode="router")) is not None  # TLS, but anyone may open a session
+    assert (
+        exposure_warning(
+            network_config(config_file=str(DOCS / "router.json5"), listen=["tcp/0.0.0.0:7447"], mode="router")
+        )
+        is None
+    )
+    assert (
+        exposure_warning(
+            network_config(config_file=str(DOCS / "tls-router.json5"), listen=["tls/0.0.0.0:7448"], mode="router")
+        )
+        is not None
+    )  # TLS, but anyone may open a session

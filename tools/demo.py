@@ -112,8 +112,7 @@ class Demo:
         state = c.wait_until_still(arm.name, mv.goal, timeout=mv.duration + 10.0)
         reached = c.fk(arm.name, state["position"]).position
         error = float(np.linalg.norm(reached - np.asarray(goal["target"]))) if isinstance(goal, dict) else None
-        self.record(Row(arm.name, case, shown, "done", error, ms,
-                        f"{mv.duration:.2f} s trajectory, plot {png.name}"))
+        self.record(Row(arm.name, case, shown, "done", error, ms, f"{mv.duration:.2f} s trajectory, plot {png.name}"))
         return True
 
     def stop(self, arm: Robot) -> None:
@@ -137,8 +136,17 @@ class Demo:
         r, ms = got
         state = c.wait_until_still(arm.name, timeout=float(r["duration"]) + 10.0)
         short = float(np.max(np.abs(np.array(state["position"]) - goal)))
-        self.record(Row(arm.name, "stop", "mid-move", "stopped", None, ms,
-                        f"at rest {r['duration']:.2f} s later, {math.degrees(short):.0f} deg short of the goal"))
+        self.record(
+            Row(
+                arm.name,
+                "stop",
+                "mid-move",
+                "stopped",
+                None,
+                ms,
+                f"at rest {r['duration']:.2f} s later, {math.degrees(short):.0f} deg short of the goal",
+            )
+        )
 
     def run(self, arm: Robot, workspace_step: float) -> None:
         for approach in ("parallel", "perpendicular", "free"):
@@ -169,12 +177,21 @@ class Demo:
 
 def print_row(row: Row) -> None:
     err = "" if row.error_m is None else f"{row.error_m:.1e}"
-    print(f"{row.arm:<10} {row.case:<16} {row.request:<26} {row.status:<12} {err:>8} {row.ms:8.1f}  {row.note}",
-          flush=True)
+    print(
+        f"{row.arm:<10} {row.case:<16} {row.request:<26} {row.status:<12} {err:>8} {row.ms:8.1f}  {row.note}",
+        flush=True,
+    )
 
 
-def run(names: Sequence[str], out: Path, *, time_scale: float = 2.0, workspace_step: float = 0.008,
-        echo: Callable[[Row], None] = print_row, say: Callable[[str], None] = print) -> list[Row]:
+def run(
+    names: Sequence[str],
+    out: Path,
+    *,
+    time_scale: float = 2.0,
+    workspace_step: float = 0.008,
+    echo: Callable[[Row], None] = print_row,
+    say: Callable[[str], None] = print,
+) -> list[Row]:
     """The service and a simulated arm for each of ``names`` (every catalogue arm if empty) on
     a free local endpoint, the scripted session on each; plots and ``demo.json`` in ``out``.
     Every request's row goes to ``echo`` as it is done; ``say`` gets the banner and the summary."""
@@ -211,6 +228,8 @@ def run(names: Sequence[str], out: Path, *, time_scale: float = 2.0, workspace_s
         session.close()
     (out / "demo.json").write_text(json.dumps([r.__dict__ for r in rows], indent=2))
     pngs = sorted(p.name for p in out.glob("*.png"))
-    say(f"{len(rows)} requests on {len(chosen)} arms in {time.perf_counter() - started:.1f} s; "
-        f"{len(pngs)} plots and demo.json in {out.resolve()}/")
+    say(
+        f"{len(rows)} requests on {len(chosen)} arms in {time.perf_counter() - started:.1f} s; "
+        f"{len(pngs)} plots and demo.json in {out.resolve()}/"
+    )
     return rows

@@ -23,31 +23,68 @@ def plot_trajectory(traj: Trajectory, robot: Robot, out: str | Path, title: str 
     lines at each joint's limits (position limits, and +-vmax, +-amax, +-jmax)."""
     lim = robot.limits
     return plot_samples(
-        out, traj.joint_names, traj.times, traj.position, traj.velocity, traj.acceleration, traj.jerk,
-        lower=lim.lower, upper=lim.upper, vmax=lim.velocity, amax=lim.acceleration, jmax=lim.jerk,
-        title=title or f"{traj.robot}: {traj.path} trajectory, {traj.duration:.2f} s at {traj.rate_hz:g} Hz "
-        "(dashed: limits)")
+        out,
+        traj.joint_names,
+        traj.times,
+        traj.position,
+        traj.velocity,
+        traj.acceleration,
+        traj.jerk,
+        lower=lim.lower,
+        upper=lim.upper,
+        vmax=lim.velocity,
+        amax=lim.acceleration,
+        jmax=lim.jerk,
+        title=title
+        or f"{traj.robot}: {traj.path} trajectory, {traj.duration:.2f} s at {traj.rate_hz:g} Hz (dashed: limits)",
+    )
 
 
-def plot_reply(client: ArmClient, robot: str, trajectory: TrajectoryReply, out: str | Path,
-               title: str | None = None) -> Path:
+def plot_reply(
+    client: ArmClient, robot: str, trajectory: TrajectoryReply, out: str | Path, title: str | None = None
+) -> Path:
     """Write a PNG of a trajectory the service planned (position, velocity, acceleration, jerk
     per joint), the arm's limits, asked of the service (``info``), drawn as dashed lines."""
     joints = client.info(robot)["joints"]
     by_name = {j["name"]: j for j in joints}
-    limit = {k: np.array([by_name[n][k] for n in trajectory.joint_names], dtype=float)
-             for k in ("lower", "upper", "velocity", "acceleration", "jerk")}
+    limit = {
+        k: np.array([by_name[n][k] for n in trajectory.joint_names], dtype=float)
+        for k in ("lower", "upper", "velocity", "acceleration", "jerk")
+    }
     t = trajectory
     return plot_samples(
-        out, t.joint_names, t.times, t.position, t.velocity, t.acceleration,
-        forward_jerk(t.acceleration, 1.0 / t.rate_hz), lower=limit["lower"], upper=limit["upper"],
-        vmax=limit["velocity"], amax=limit["acceleration"], jmax=limit["jerk"],
-        title=title or f"{robot}: {t.path} trajectory, {t.duration:.2f} s at {t.rate_hz:g} Hz (dashed: limits)")
+        out,
+        t.joint_names,
+        t.times,
+        t.position,
+        t.velocity,
+        t.acceleration,
+        forward_jerk(t.acceleration, 1.0 / t.rate_hz),
+        lower=limit["lower"],
+        upper=limit["upper"],
+        vmax=limit["velocity"],
+        amax=limit["acceleration"],
+        jmax=limit["jerk"],
+        title=title or f"{robot}: {t.path} trajectory, {t.duration:.2f} s at {t.rate_hz:g} Hz (dashed: limits)",
+    )
 
 
-def plot_samples(out: str | Path, joint_names: Sequence[str], times: FloatArray, position: FloatArray,
-                 velocity: FloatArray, acceleration: FloatArray, jerk: FloatArray, *, lower: FloatArray,
-                 upper: FloatArray, vmax: FloatArray, amax: FloatArray, jmax: FloatArray, title: str) -> Path:
+def plot_samples(
+    out: str | Path,
+    joint_names: Sequence[str],
+    times: FloatArray,
+    position: FloatArray,
+    velocity: FloatArray,
+    acceleration: FloatArray,
+    jerk: FloatArray,
+    *,
+    lower: FloatArray,
+    upper: FloatArray,
+    vmax: FloatArray,
+    amax: FloatArray,
+    jmax: FloatArray,
+    title: str,
+) -> Path:
     """The plot of :func:`plot_trajectory` from bare samples (k, n) and per-joint limits (n,)."""
     import matplotlib
 

@@ -57,8 +57,6 @@ MAX_PATH_POINTS = 400  # a long trajectory's tool path is drawn through at most 
 ZMQ_TIMEOUT_MS = 5000
 
 
-
-
 # -- the meshcat server, in a thread of this process ---------------------------------------------
 
 
@@ -73,12 +71,12 @@ def _bind(port: int | None) -> tuple[list[Any], int]:
             socks = bind_sockets(p, address=HOST)
         except OSError as e:
             if port is not None:
-                raise ViewerError(f"cannot listen on {HOST}:{port}: {e.strerror}; choose another port (--port)",
-                                  port=port) from None
+                raise ViewerError(
+                    f"cannot listen on {HOST}:{port}: {e.strerror}; choose another port (--port)", port=port
+                ) from None
             continue
         return socks, int(socks[0].getsockname()[1])
-    raise ViewerError(f"no free port on {HOST} in {DEFAULT_PORT}..{DEFAULT_PORT + PORT_TRIES - 1}; "
-                      "choose one (--port)")
+    raise ViewerError(f"no free port on {HOST} in {DEFAULT_PORT}..{DEFAULT_PORT + PORT_TRIES - 1}; choose one (--port)")
 
 
 class _MeshcatServer:
@@ -144,10 +142,13 @@ class _MeshcatServer:
             bridge = ZMQWebSocketBridge.__new__(ZMQWebSocketBridge)
             bridge.host = HOST
             bridge.websocket_pool = set()
-            bridge.app = Application([
-                (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
-                (r"/", QuietWebSocket, {"bridge": bridge}),
-            ], log_function=lambda handler: None)  # no access log line per file
+            bridge.app = Application(
+                [
+                    (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
+                    (r"/", QuietWebSocket, {"bridge": bridge}),
+                ],
+                log_function=lambda handler: None,
+            )  # no access log line per file
             bridge.ioloop = ioloop
             bridge.zmq_socket, bridge.zmq_stream, _ = bridge.setup_zmq(f"tcp://{HOST}:*")
             bridge.zmq_url = self.zmq_url = bridge.zmq_socket.getsockopt(zmq.LAST_ENDPOINT).decode()
@@ -225,8 +226,9 @@ def _visual_model(robot: Robot) -> Any:
         with open(toml, "rb") as f:
             urdf = str(tomllib.load(f).get("robot", {}).get("urdf", urdf))
     try:
-        return pin.buildGeomFromUrdf(robot.model, str(robot.folder / urdf), pin.GeometryType.VISUAL,
-                                     package_dirs=[str(robot.folder)])
+        return pin.buildGeomFromUrdf(
+            robot.model, str(robot.folder / urdf), pin.GeometryType.VISUAL, package_dirs=[str(robot.folder)]
+        )
     except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++
         raise ViewerError(f"cannot read the visual geometry of {robot.folder / urdf}: {e}") from None
 
@@ -413,15 +415,16 @@ class ArmView:
         pos = np.asarray(position, dtype=float)
         n = self.robot.nq
         if pos.ndim != 2 or pos.shape[1] != n or len(pos) == 0 or not np.all(np.isfinite(pos)):
-            raise BadRequest(f"trajectory position must be (k, {n}) finite joint samples [rad], "
-                             f"got shape {list(pos.shape)}", field="position")
+            raise BadRequest(
+                f"trajectory position must be (k, {n}) finite joint samples [rad], got shape {list(pos.shape)}",
+                field="position",
+            )
         if target is None:
             tgt = self.robot.fk(pos[-1])
         else:
             tgt = np.asarray(target, dtype=float)
             if tgt.shape != (3,) or not np.all(np.isfinite(tgt)):
-                raise BadRequest(f"target must be 3 finite numbers [x, y, z] in metres, got {target!r}",
-                                 field="target")
+                raise BadRequest(f"target must be 3 finite numbers [x, y, z] in metres, got {target!r}", field="target")
         with self._lock:
             self._pending_path = (pos.copy(), tgt.copy())
             self._pending_clear = False
@@ -549,8 +552,10 @@ class ZenohFeed:
         self.states = 0  # messages received
         self.trajectories = 0
         self._warned_state = False
-        self._subs = [session.declare_subscriber(f"{self.base}/state", self._on_state),
-                      session.declare_subscriber(f"{self.base}/trajectory", self._on_trajectory)]
+        self._subs = [
+            session.declare_subscriber(f"{self.base}/state", self._on_state),
+            session.declare_subscriber(f"{self.base}/trajectory", self._on_trajectory),
+        ]
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         self.states += 1
@@ -560,8 +565,11 @@ class ZenohFeed:
         except (ValueError, KeyError, TypeError, ArmdError) as e:
             if not self._warned_state:  # states come at 50 Hz: say it once
                 self._warned_state = True
-                log.warning("%s/state: message ignored (%s); further bad states are ignored silently", self.base,
-                            getattr(e, "message", e))
+                log.warning(
+                    "%s/state: message ignored (%s); further bad states are ignored silently",
+                    self.base,
+                    getattr(e, "message", e),
+                )
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
         self.trajectories += 1
@@ -571,8 +579,13 @@ class ZenohFeed:
         except (ValueError, KeyError, TypeError, ArmdError) as e:
             log.warning("%s/trajectory: message ignored (%s)", self.base, getattr(e, "message", e))
             return
-        log.info("%s: trajectory %s (%s, %.2f s) drawn", self.base, msg.get("id", "?"), msg.get("kind", "move"),
-                 float(msg.get("duration") or 0.0))
+        log.info(
+            "%s: trajectory %s (%s, %.2f s) drawn",
+            self.base,
+            msg.get("id", "?"),
+            msg.get("kind", "move"),
+            float(msg.get("duration") or 0.0),
+        )
 
     def close(self) -> None:
         for sub in self._subs:

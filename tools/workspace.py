@@ -116,18 +116,23 @@ def compute(robot: Robot, *, step: float = 0.004, heights: int = 16, progress: P
         nonlocal done
         out = np.empty(len(points), dtype=bool)
         for k in range(0, len(points), CHUNK):
-            out[k:k + CHUNK] = solvers.reachable(robot, points[k:k + CHUNK], approach=approach)
-            done += len(points[k:k + CHUNK])
+            out[k : k + CHUNK] = solvers.reachable(robot, points[k : k + CHUNK], approach=approach)
+            done += len(points[k : k + CHUNK])
             if progress is not None:
                 progress(done, total)
         return out
 
     side: list[BoolArray] = [ask(side_pts, a).reshape(X.shape) for a in approaches]
-    top: list[BoolArray] = [np.any(ask(top_pts, a).reshape(TX.shape), axis=2).T  # rows: y, columns: x
-                            for a in approaches]
+    top: list[BoolArray] = [
+        np.any(ask(top_pts, a).reshape(TX.shape), axis=2).T  # rows: y, columns: x
+        for a in approaches
+    ]
     seconds = time.perf_counter() - started
     return Workspace(
-        robot=robot.name, step=float(step), lateral=float(lateral), heights=levels,
+        robot=robot.name,
+        step=float(step),
+        lateral=float(lateral),
+        heights=levels,
         side=View(xs, zs, side[0], side[1] if has_pitch else None),
         top=View(xs, xs, top[0], top[1] if has_pitch else None),
         seconds=seconds,
@@ -163,8 +168,13 @@ class Drawn:
     size: tuple[int, int]  # width, height [px]
 
     @staticmethod
-    def pixel(box: tuple[float, float, float, float], limits: tuple[float, float, float, float],
-              h: float, v: float, height: int) -> tuple[int, int]:
+    def pixel(
+        box: tuple[float, float, float, float],
+        limits: tuple[float, float, float, float],
+        h: float,
+        v: float,
+        height: int,
+    ) -> tuple[int, int]:
         """Row and column in the image array (row 0 at the top) of the point (h, v) [m]."""
         x0, y0, x1, y1 = box
         h0, h1, v0, v1 = limits
@@ -188,16 +198,22 @@ def plot(ws: Workspace, robot: Robot, out: str | Path, dpi: int = 100) -> Drawn:
     stick = robot.skeleton(q)
     half = ws.step / 2
     for ax, view, (a, b) in ((ax_side, ws.side, (0, 2)), (ax_top, ws.top, (0, 1))):
-        limits = (float(view.horizontal[0] - half), float(view.horizontal[-1] + half),
-                  float(view.vertical[0] - half), float(view.vertical[-1] + half))
+        limits = (
+            float(view.horizontal[0] - half),
+            float(view.horizontal[-1] + half),
+            float(view.vertical[0] - half),
+            float(view.vertical[-1] + half),
+        )
         ax.imshow(_image(view), origin="lower", extent=limits, interpolation="nearest", aspect="equal")
         ax.plot(stick[:, a], stick[:, b], "-o", color="0.15", linewidth=2.5, markersize=4, label="arm (neutral)")
         ax.set_xlim(limits[0], limits[1])
         ax.set_ylim(limits[2], limits[3])
         ax.grid(True, alpha=0.25)
     area_a = ws.side.any_pitch.sum() * ws.side.cell_area
-    ax_side.set_title(f"side view (plane y = {ws.lateral:.3f} m)\nA: {area_a * 1e4:.0f} cm²" + (
-        f", B: {ws.side.parallel.sum() * ws.side.cell_area * 1e4:.0f} cm²" if ws.side.parallel is not None else ""))
+    ax_side.set_title(
+        f"side view (plane y = {ws.lateral:.3f} m)\nA: {area_a * 1e4:.0f} cm²"
+        + (f", B: {ws.side.parallel.sum() * ws.side.cell_area * 1e4:.0f} cm²" if ws.side.parallel is not None else "")
+    )
     ax_side.set_xlabel("x [m]")
     ax_side.set_ylabel("z [m]")
     ax_top.set_title(f"top view (reachable at some height in [{ws.heights[0]:.3f}, {ws.heights[-1]:.3f}] m)")

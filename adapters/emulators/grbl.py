@@ -181,18 +181,72 @@ _SETTING = re.compile(r"\$(" + _NUMBER.pattern + r")(?:(=)(" + _NUMBER.pattern +
 _ACCEL, _CRUISE, _DECEL, _DECEL_OVERRIDE = 0, 1, 2, 3  # stepper.c's ramp types
 
 # The settings GRBL 1.1 has, with its defaults; axis settings ($100+i ...) are added per axis.
-_DEFAULTS: dict[int, float] = {0: 10, 1: 25, 2: 0, 3: 0, 4: 0, 5: 0, 6: 0, 10: 1, 11: 0.010, 12: 0.002,
-                               13: 0, 20: 0, 21: 0, 22: 0, 23: 0, 24: 25.0, 25: 500.0, 26: 250, 27: 1.0,
-                               30: 1000, 31: 0, 32: 0}
+_DEFAULTS: dict[int, float] = {
+    0: 10,
+    1: 25,
+    2: 0,
+    3: 0,
+    4: 0,
+    5: 0,
+    6: 0,
+    10: 1,
+    11: 0.010,
+    12: 0.002,
+    13: 0,
+    20: 0,
+    21: 0,
+    22: 0,
+    23: 0,
+    24: 25.0,
+    25: 500.0,
+    26: 250,
+    27: 1.0,
+    30: 1000,
+    31: 0,
+    32: 0,
+}
 _AXIS_DEFAULTS = {100: 250.0, 110: 500.0, 120: 10.0, 130: 200.0}  # steps/unit, units/min, units/s^2, units
 _BOOLS = {4, 5, 6, 13, 20, 21, 22, 32}
 _INTEGERS = {0, 1, 2, 3, 10, 23, 26} | _BOOLS
-_G_GROUPS = {0: "motion", 1: "motion", 80: "motion", 4: "non-modal", 10: "non-modal", 28: "non-modal",
-             30: "non-modal", 53: "non-modal", 92: "non-modal", 17: "plane", 18: "plane", 19: "plane",
-             20: "units", 21: "units", 40: "cutter", 49: "tool length", 54: "wcs", 55: "wcs", 56: "wcs", 57: "wcs",
-             58: "wcs", 59: "wcs", 61: "control", 90: "distance", 91: "distance", 94: "feed mode"}
-_M_GROUPS = {0: "flow", 1: "flow", 2: "flow", 30: "flow", 3: "spindle", 4: "spindle", 5: "spindle", 8: "coolant",
-             9: "coolant"}
+_G_GROUPS = {
+    0: "motion",
+    1: "motion",
+    80: "motion",
+    4: "non-modal",
+    10: "non-modal",
+    28: "non-modal",
+    30: "non-modal",
+    53: "non-modal",
+    92: "non-modal",
+    17: "plane",
+    18: "plane",
+    19: "plane",
+    20: "units",
+    21: "units",
+    40: "cutter",
+    49: "tool length",
+    54: "wcs",
+    55: "wcs",
+    56: "wcs",
+    57: "wcs",
+    58: "wcs",
+    59: "wcs",
+    61: "control",
+    90: "distance",
+    91: "distance",
+    94: "feed mode",
+}
+_M_GROUPS = {
+    0: "flow",
+    1: "flow",
+    2: "flow",
+    30: "flow",
+    3: "spindle",
+    4: "spindle",
+    5: "spindle",
+    8: "coolant",
+    9: "coolant",
+}
 
 
 def _round_steps(x: float) -> int:
@@ -301,15 +355,24 @@ class GrblEmulator(PtyEmulator):
     name = "grbl-emulator"
     keep_slave = False  # a client's open shows as the hang-up clearing: the Arduino resets then
 
-    def __init__(self, *, axes: str = "XYZ", rx_buffer: int = 128, planner_blocks: int = 15,
-                 time_scale: float = 1.0, clock: Callable[[], float] = time.monotonic,
-                 settings: Mapping[int, float] | None = None,
-                 offsets: Mapping[str, Mapping[str, float]] | None = None,
-                 physical_start: Mapping[str, float] | None = None,
-                 home_switches: Mapping[str, float] | None = None,
-                 homing_cycles: tuple[str, ...] = ("Z", "XY"),
-                 status_delay: float = 0.003, trace_max: int = 200_000, baud: int | None = None,
-                 startup_lines: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        *,
+        axes: str = "XYZ",
+        rx_buffer: int = 128,
+        planner_blocks: int = 15,
+        time_scale: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+        settings: Mapping[int, float] | None = None,
+        offsets: Mapping[str, Mapping[str, float]] | None = None,
+        physical_start: Mapping[str, float] | None = None,
+        home_switches: Mapping[str, float] | None = None,
+        homing_cycles: tuple[str, ...] = ("Z", "XY"),
+        status_delay: float = 0.003,
+        trace_max: int = 200_000,
+        baud: int | None = None,
+        startup_lines: tuple[str, ...] = (),
+    ) -> None:
         """``axes``: the axis letters (from XYZABC), in report order; ``rx_buffer`` [bytes] and
         ``planner_blocks``: GRBL's buffer sizes (15 usable blocks of BLOCK_BUFFER_SIZE 16);
         ``time_scale``: machine seconds per clock second (10 runs motion and dwells 10 times as fast);
@@ -372,8 +435,9 @@ class GrblEmulator(PtyEmulator):
         self._last = self._clock()
         self._steps_done = [0] * len(axes)  # [steps] GRBL's sys_position at the running block's start
         # [steps] the arm's physical position is (_origin + GRBL's steps) / $10x
-        self._origin = [_round_steps(float((physical_start or {}).get(a, 0.0)) * self._spu(i))
-                        for i, a in enumerate(axes)]
+        self._origin = [
+            _round_steps(float((physical_start or {}).get(a, 0.0)) * self._spu(i)) for i, a in enumerate(axes)
+        ]
         self._status_due: float | None = None
         self._alarm = False
         self._blocks: deque[_Block] = deque()
@@ -763,26 +827,35 @@ class GrblEmulator(PtyEmulator):
         accel = _limit_by_axis_maximum([self.settings[120 + i] for i in range(len(unit))], unit)
         rapid_rate = _limit_by_axis_maximum([self.settings[110 + i] / 60.0 for i in range(len(unit))], unit)
         rapid = rate <= 0.0 and not system
-        b = _Block(list(start), list(target), length, length, accel, rapid_rate,
-                   rapid_rate if rapid else rate / 60.0, rapid, system, no_feed_override=system or jog)
+        b = _Block(
+            list(start),
+            list(target),
+            length,
+            length,
+            accel,
+            rapid_rate,
+            rapid_rate if rapid else rate / 60.0,
+            rapid,
+            system,
+            no_feed_override=system or jog,
+        )
         if system:
             return b
         if self._blocks:  # the junction with the previous block: planner.c's junction deviation
             cos_theta = -sum(p * u for p, u in zip(self._prev_unit, unit, strict=True))
             if cos_theta > 0.999999:  # a reversal
-                b.max_junction_speed_sqr = MINIMUM_JUNCTION_SPEED ** 2
+                b.max_junction_speed_sqr = MINIMUM_JUNCTION_SPEED**2
             elif cos_theta < -0.999999:  # straight on
                 b.max_junction_speed_sqr = SOME_LARGE_VALUE
             else:
                 junction = [u - p for p, u in zip(self._prev_unit, unit, strict=True)]
                 norm = math.sqrt(sum(j * j for j in junction))
                 junction = [j / norm for j in junction]
-                junction_accel = _limit_by_axis_maximum([self.settings[120 + i] for i in range(len(unit))],
-                                                        junction)
+                junction_accel = _limit_by_axis_maximum([self.settings[120 + i] for i in range(len(unit))], junction)
                 sin_theta_d2 = math.sqrt(0.5 * (1.0 - cos_theta))
-                b.max_junction_speed_sqr = max(MINIMUM_JUNCTION_SPEED ** 2,
-                                               junction_accel * self.settings[11] * sin_theta_d2
-                                               / (1.0 - sin_theta_d2))
+                b.max_junction_speed_sqr = max(
+                    MINIMUM_JUNCTION_SPEED**2, junction_accel * self.settings[11] * sin_theta_d2 / (1.0 - sin_theta_d2)
+                )
         nominal = b.nominal_speed(self._f_ovr, self._r_ovr)  # plan_compute_profile_parameters
         b.max_entry_speed_sqr = min(nominal, self._prev_nominal) ** 2
         b.max_entry_speed_sqr = min(b.max_entry_speed_sqr, b.max_junction_speed_sqr)
@@ -1083,9 +1156,16 @@ class GrblEmulator(PtyEmulator):
         return not self._blocks and not self._cycle and self._homing is None
 
     def _parser_busy(self) -> bool:
-        return (bool(self._waiting) or self._pending is not None or self._dwell_left is not None
-                or self._flow is not None or self._paused
-                or self._homing is not None or self._soft_limit_wait or self._held_line)
+        return (
+            bool(self._waiting)
+            or self._pending is not None
+            or self._dwell_left is not None
+            or self._flow is not None
+            or self._paused
+            or self._homing is not None
+            or self._soft_limit_wait
+            or self._held_line
+        )
 
     def _auto_cycle_start(self) -> None:
         """protocol_auto_cycle_start: queued blocks start moving (from Idle only)."""
@@ -1367,9 +1447,11 @@ class GrblEmulator(PtyEmulator):
             return 0
         if cmd == "G":
             mod = self._modal
-            self._send(f"[GC:G{mod.motion} G{54 + mod.coord_select} G17 G{20 if mod.inches else 21} "
-                       f"G{90 if mod.absolute else 91} G94 M{mod.spindle} M{mod.coolant} T{mod.tool} "
-                       f"F{self._rate(mod.feed)} S{mod.speed:.0f}]")  # F in $13's unit, not G20's
+            self._send(
+                f"[GC:G{mod.motion} G{54 + mod.coord_select} G17 G{20 if mod.inches else 21} "
+                f"G{90 if mod.absolute else 91} G94 M{mod.spindle} M{mod.coolant} T{mod.tool} "
+                f"F{self._rate(mod.feed)} S{mod.speed:.0f}]"
+            )  # F in $13's unit, not G20's
             return 0
         if cmd == "X":
             if self._alarm:
@@ -1602,8 +1684,10 @@ class GrblEmulator(PtyEmulator):
         elif non_modal == 92:
             if not axis:
                 return 26
-            g92 = [self._gc_pos[j] - block_coords[j] - axis[a] if a in axis else self._g92[j]
-                   for j, a in enumerate(self.axes)]
+            g92 = [
+                self._gc_pos[j] - block_coords[j] - axis[a] if a in axis else self._g92[j]
+                for j, a in enumerate(self.axes)
+            ]
         if non_modal == 53 and motion not in (0, 1):
             return 30
         if motion == 80 and axis:
@@ -1663,8 +1747,10 @@ class GrblEmulator(PtyEmulator):
             targets.append((target_units, 0.0 if motion == 0 or non_modal in (28, 30) else feed))
         if non_modal in (28, 30):  # G28, G30: rapid to the stored position (of the axes named, if any)
             stored = self.coords[6 if non_modal == 28 else 7]
-            final = [stored[j] if not axis or a in axis else p for j, (a, p) in enumerate(zip(self.axes, self._gc_pos,
-                                                                                               strict=True))]
+            final = [
+                stored[j] if not axis or a in axis else p
+                for j, (a, p) in enumerate(zip(self.axes, self._gc_pos, strict=True))
+            ]
             targets.append((final, 0.0))
         for target_units, rate in targets:
             if self.settings[20] and any(t > 0.0 or t < -self.settings[130 + j] for j, t in enumerate(target_units)):

@@ -90,8 +90,9 @@ def pulse_resolution(robot: Robot) -> FloatArray:
     M = np.abs(robot.actuators.M)
     res = np.array([a.resolution for a in robot.actuators.actuators])
     moved = M > 0
-    return np.array([float(np.max(res[moved[:, j]] / M[moved[:, j], j])) if moved[:, j].any() else 0.0
-                     for j in range(robot.nq)])
+    return np.array(
+        [float(np.max(res[moved[:, j]] / M[moved[:, j], j])) if moved[:, j].any() else 0.0 for j in range(robot.nq)]
+    )
 
 
 def _pulse_at(segments: list[tuple[float, float, float, float]], times: FloatArray) -> FloatArray:

@@ -54,7 +54,8 @@ class _Host:
 
     def policy(self) -> str:
         return {os.SCHED_FIFO: "SCHED_FIFO", os.SCHED_OTHER: f"nice {os.nice(0)}"}.get(
-            os.sched_getscheduler(0), "other")
+            os.sched_getscheduler(0), "other"
+        )
 
 
 _Manager.register("Host", _Host)
@@ -92,8 +93,9 @@ class EmulatorProcess:
         self.start()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
         self.stop()
 
     @property

@@ -97,8 +97,11 @@ _GROUP = re.compile(r"(?:#\d+P\d+(?:S\d+)?)+(?:T\d+)?")
 _ITEM = re.compile(r"#(\d+)P(\d+)(?:S(\d+))?")
 _QUERY_PULSES = re.compile(r"(?:QP\d+)+")
 _STOP = re.compile(r"STOP(\d+)")
-_TERMIOS_BAUDS = {getattr(termios, f"B{r}"): r for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
-                  if hasattr(termios, f"B{r}")}
+_TERMIOS_BAUDS = {
+    getattr(termios, f"B{r}"): r
+    for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
+    if hasattr(termios, f"B{r}")
+}
 _IGNORED = b"\n"  # dropped as they arrive; spaces and tabs are dropped when a command is parsed
 
 Segment = tuple[float, float, float, float]  # (t0 [s], t1 [s], p0 [us], p1 [us]), linear between
@@ -144,8 +147,14 @@ class SSC32Emulator(PtyEmulator):
     name = "ssc32-emulator"
     keep_slave = True  # the board does not reset when its port is opened
 
-    def __init__(self, *, version: str = "SSC32-V2.50USB", clock: Callable[[], float] = time.monotonic,
-                 baud: int | None = DEFAULT_BAUD, query_delay: float = 100e-6) -> None:
+    def __init__(
+        self,
+        *,
+        version: str = "SSC32-V2.50USB",
+        clock: Callable[[], float] = time.monotonic,
+        baud: int | None = DEFAULT_BAUD,
+        query_delay: float = 100e-6,
+    ) -> None:
         if baud is not None and baud <= 0:
             raise ValueError(f"baud must be positive or None, not {baud}")
         if not query_delay >= 0:
@@ -369,8 +378,9 @@ class SSC32Emulator(PtyEmulator):
             return False
         t = re.search(r"T(\d+)$", cmd)
         duration_ms = None if t is None else int(t[1])
-        self.history.append(GroupMove(now, {ch: pw for ch, pw, _ in items},
-                                      {ch: s for ch, _, s in items if s is not None}, duration_ms))
+        self.history.append(
+            GroupMove(now, {ch: pw for ch, pw, _ in items}, {ch: s for ch, _, s in items if s is not None}, duration_ms)
+        )
         duration = min(duration_ms or 0, TIME_MAX) / 1000.0  # [s]
         moves: dict[int, tuple[float | None, int]] = {}  # channel: (pulse now or None, clamped target)
         for ch, pw, speed in items:
@@ -396,24 +406,33 @@ class SSC32Emulator(PtyEmulator):
 
 def main(argv: list[str] | None = None) -> int:
     """Serve an emulated SSC-32 until Ctrl-C, printing its port and what it receives."""
-    parser = argparse.ArgumentParser(prog="python -m armd.adapters.emulators.ssc32",
-                                     description="An emulated SSC-32 servo controller on a pseudo-terminal.")
+    parser = argparse.ArgumentParser(
+        prog="python -m armd.adapters.emulators.ssc32",
+        description="An emulated SSC-32 servo controller on a pseudo-terminal.",
+    )
     parser.add_argument("--ver", default="SSC32-V2.50USB", help="what VER answers")
-    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD,
-                        help=f"the link's rate, bit/s (the SSC-32U ships at {FACTORY_BAUD}); open the port at"
-                        " the same rate, or nothing is executed; 0: an instant link that takes any rate")
+    parser.add_argument(
+        "--baud",
+        type=int,
+        default=DEFAULT_BAUD,
+        help=f"the link's rate, bit/s (the SSC-32U ships at {FACTORY_BAUD}); open the port at"
+        " the same rate, or nothing is executed; 0: an instant link that takes any rate",
+    )
     parser.add_argument("--query-delay", type=float, default=100e-6, help="seconds before a query's reply leaves")
     args = parser.parse_args(argv)
     with SSC32Emulator(version=args.ver, baud=args.baud or None, query_delay=args.query_delay) as emu:
         print(emu.port, flush=True)
-        logs: dict[str, Sequence[object]] = {"move": emu.history, "out of range": emu.out_of_range,
-                                             "not understood": emu.errors}
+        logs: dict[str, Sequence[object]] = {
+            "move": emu.history,
+            "out of range": emu.out_of_range,
+            "not understood": emu.errors,
+        }
         seen = dict.fromkeys(logs, 0)
         try:
             while True:
                 time.sleep(0.1)
                 for label, items in logs.items():
-                    for item in items[seen[label]:]:
+                    for item in items[seen[label] :]:
                         print(f"{label}: {item}", flush=True)
                     seen[label] = len(items)
         except KeyboardInterrupt:

@@ -95,8 +95,9 @@ class PayloadTooLarge(TooLarge):
 
 class BatchTooLarge(TooLarge):
     def __init__(self, size: int, limit: int) -> None:
-        super().__init__(f"{size} targets; this service accepts at most {limit} per request", field="targets",
-                         size=size, limit=limit)
+        super().__init__(
+            f"{size} targets; this service accepts at most {limit} per request", field="targets", size=size, limit=limit
+        )
 
 
 class TrajectoryTooLong(TooLarge):
@@ -104,9 +105,13 @@ class TrajectoryTooLong(TooLarge):
     nothing is sampled. A lower ``rate_hz`` or a higher ``speed`` makes fewer."""
 
     def __init__(self, samples: int, limit: int, duration: float, rate_hz: float) -> None:
-        super().__init__(f"the trajectory would have {samples} samples ({duration:.1f} s at {rate_hz:g} Hz); "
-                         f"this service allows at most {limit}: raise speed or lower rate_hz",
-                         size=samples, limit=limit, field="speed")
+        super().__init__(
+            f"the trajectory would have {samples} samples ({duration:.1f} s at {rate_hz:g} Hz); "
+            f"this service allows at most {limit}: raise speed or lower rate_hz",
+            size=samples,
+            limit=limit,
+            field="speed",
+        )
 
 
 class UnknownRobot(ArmdError, LookupError):
@@ -116,8 +121,9 @@ class UnknownRobot(ArmdError, LookupError):
 
     def __init__(self, name: str, available: Iterable[str]) -> None:
         avail = sorted(available)
-        super().__init__(f"unknown robot {name!r}; the catalogue has: {', '.join(avail) or '(none)'}",
-                         robot=name, available=avail)
+        super().__init__(
+            f"unknown robot {name!r}; the catalogue has: {', '.join(avail) or '(none)'}", robot=name, available=avail
+        )
         self.name = name
         self.available = avail
 
@@ -151,8 +157,16 @@ class LimitError(ArmdError):
 
     code = "limit"
 
-    def __init__(self, message: str, *, name: str, value: float, bounds: tuple[float, float], kind: str,
-                 time: float | None = None) -> None:
+    def __init__(
+        self,
+        message: str,
+        *,
+        name: str,
+        value: float,
+        bounds: tuple[float, float],
+        kind: str,
+        time: float | None = None,
+    ) -> None:
         super().__init__(message, name=name, value=value, bounds=list(bounds), kind=kind, time=time)
         self.name = name
         self.value = value
@@ -165,25 +179,40 @@ class JointLimitError(LimitError):
     """A joint position outside its box limits ``[lower, upper]`` [rad]."""
 
     def __init__(self, joint: str, value: float, bounds: tuple[float, float]) -> None:
-        super().__init__(f"joint {joint!r} at {value:.6g} rad is outside its limits [{bounds[0]:.6g}, {bounds[1]:.6g}]",
-                         name=joint, value=value, bounds=bounds, kind="position")
+        super().__init__(
+            f"joint {joint!r} at {value:.6g} rad is outside its limits [{bounds[0]:.6g}, {bounds[1]:.6g}]",
+            name=joint,
+            value=value,
+            bounds=bounds,
+            kind="position",
+        )
 
 
 class CoupledLimitError(LimitError):
     """A linear combination of joints outside its coupled limit ``lower <= c.q <= upper``."""
 
     def __init__(self, limit: str, value: float, bounds: tuple[float, float]) -> None:
-        super().__init__(f"coupled limit {limit!r} at {value:.6g} is outside [{bounds[0]:.6g}, {bounds[1]:.6g}]",
-                         name=limit, value=value, bounds=bounds, kind="coupled")
+        super().__init__(
+            f"coupled limit {limit!r} at {value:.6g} is outside [{bounds[0]:.6g}, {bounds[1]:.6g}]",
+            name=limit,
+            value=value,
+            bounds=bounds,
+            kind="coupled",
+        )
 
 
 class ActuatorRangeError(LimitError):
     """An actuator command (servo pulse [us], stepper angle) outside the actuator's range."""
 
     def __init__(self, actuator: str, value: float, bounds: tuple[float, float], unit: str) -> None:
-        super().__init__(f"actuator {actuator!r} would be commanded to {value:.6g} {unit}, outside its range "
-                         f"[{bounds[0]:.6g}, {bounds[1]:.6g}] {unit}",
-                         name=actuator, value=value, bounds=bounds, kind="actuator")
+        super().__init__(
+            f"actuator {actuator!r} would be commanded to {value:.6g} {unit}, outside its range "
+            f"[{bounds[0]:.6g}, {bounds[1]:.6g}] {unit}",
+            name=actuator,
+            value=value,
+            bounds=bounds,
+            kind="actuator",
+        )
         self.unit = unit
 
 
@@ -229,8 +258,13 @@ class DeadlineExceeded(ArmdError):
 
     def __init__(self, budget: float, elapsed: float, stage: str) -> None:
         what = "waited in the queue" if stage == "queued" else "was being worked on"
-        super().__init__(f"the request {what} past its deadline of {budget:g} s ({elapsed:.3f} s since it arrived); "
-                         "nothing was done", deadline=budget, elapsed=round(elapsed, 6), stage=stage)
+        super().__init__(
+            f"the request {what} past its deadline of {budget:g} s ({elapsed:.3f} s since it arrived); "
+            "nothing was done",
+            deadline=budget,
+            elapsed=round(elapsed, 6),
+            stage=stage,
+        )
 
 
 class ControllerFault(ArmdError):
@@ -306,8 +340,9 @@ _REMOTE: dict[str, type[ServiceError]] = {}  # code: its ServiceError class
 def _remote(code: str, owner: type[ArmdError]) -> type[ServiceError]:
     cls = _REMOTE.get(code)
     if cls is None:  # (two threads at once: either class does)
-        cls = _REMOTE.setdefault(code, type(owner.__name__, (ServiceError, owner),
-                                            {"__module__": __name__, "__doc__": owner.__doc__}))
+        cls = _REMOTE.setdefault(
+            code, type(owner.__name__, (ServiceError, owner), {"__module__": __name__, "__doc__": owner.__doc__})
+        )
     return cls
 
 
