@@ -58,7 +58,8 @@ log = logging.getLogger(__name__)
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
 JSON = zenoh.Encoding.APPLICATION_JSON
 Route = tuple[Robot | None, str]  # (arm, verb); (None, "robots") for the service-wide verb
-ACCEPT_TIMEOUT = 1.0  # [s] how long a move waits for an adapter to accept its trajectory
+ACCEPT_TIMEOUT = 1.0  # [s] how long a move waits for an adapter to accept its trajectory ...
+ACCEPT_PER_SAMPLE = 1e-4  # [s] ... plus this per sample (an adapter parses and checks all of them first)
 JUMP_SLACK = 0.05  # [rad] what a report may move beyond what the velocity limits allow since the last one
 SETTLE = 0.1  # [s] the time a report may move over, beyond the time between reports (bunched deliveries)
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
@@ -290,20 +291,21 @@ class Service:
     def _publish(self, arm: Robot, message: dict[str, Any]) -> str:
         """Publish a trajectory and wait until a live adapter of ``arm`` accepts it: its id.
         Refused by every adapter: :class:`Rejected` with the reason. No answer in
-        ``ACCEPT_TIMEOUT``: an estop (so that a late adapter does not move the arm after the
-        caller was told it would not), then :class:`NoAdapter`."""
+        ``ACCEPT_TIMEOUT`` plus ``ACCEPT_PER_SAMPLE`` a sample: an estop (so that a late adapter
+        does not move the arm after the caller was told it would not), then :class:`NoAdapter`."""
         ident = str(message["id"])
+        wait = ACCEPT_TIMEOUT + ACCEPT_PER_SAMPLE * len(message.get("times", ()))
         waiter = _Acceptance()
         with self._lock:
             self._pending[ident] = (arm.name, waiter)
         try:
             self._publishers[arm.name].put(encode(message))
-            if not waiter.done.wait(ACCEPT_TIMEOUT):
+            if not waiter.done.wait(wait):
                 self._publish_estop(
                     arm, {"id": uuid.uuid4().hex, "by": "service", "reason": f"no adapter accepted trajectory {ident}"}
                 )
                 raise NoAdapter(
-                    f"no adapter of {arm.name} accepted the trajectory within {ACCEPT_TIMEOUT:.0f} s "
+                    f"no adapter of {arm.name} accepted the trajectory within {wait:.1f} s "
                     "(an estop was sent, so that a late one does not move the arm)",
                     robot=arm.name,
                 )

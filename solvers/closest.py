@@ -84,7 +84,7 @@ def _cost(
     return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
 
 
-@jit
+@entry("Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], f8, f8, f8[:], i8, f8, f8)")
 def refine_family(
     P: FloatArray,
     J: IntArray,
@@ -529,7 +529,7 @@ def closest_level(
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
-@jit
+@entry("f8(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, f8[:], f8[:], f8[:], b1)")
 def closest_box(
     P: FloatArray,
     J: IntArray,

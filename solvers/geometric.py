@@ -76,7 +76,7 @@ class FamilyParams:
         return cls(P, J, robot.nq)
 
 
-wrap_angle = jit(wrap)  # (armd.robots.angles' wrap, compiled: [-pi, pi))
+wrap_angle = entry("f8(f8)")(wrap)  # (armd.robots.angles' wrap, compiled: [-pi, pi))
 
 
 @jit

@@ -152,6 +152,10 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
     sub = session.declare_subscriber(
         "leave/gupta3/trajectory", lambda s: published.append(json.loads(s.payload.to_bytes()))
     )
+    events: list[dict[str, object]] = []
+    events_sub = session.declare_subscriber(
+        "leave/gupta3/events", lambda s: events.append(json.loads(s.payload.to_bytes()))
+    )
     estops: list[dict[str, object]] = []
     estop_sub = session.declare_subscriber(
         "leave/gupta3/estop", lambda s: estops.append(json.loads(s.payload.to_bytes()))
@@ -174,15 +178,17 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
             assert r.status == "ok" and np.allclose(r.q, solvers.solve_ik(arm, target).q, atol=1e-12)
         wait_for(lambda: service.stats()["in_flight"] == 0, what="the dead client's batch to end")
         assert published == []  # an IK answer publishes nothing, client or not
-        # 2. leaves (closes its session) while its move is planned (a line of 72,000 samples, ~0.5 s)
+        # 2. leaves (closes its session) as soon as its move has arrived: a line of 16,643 samples
+        # (planned in tens of milliseconds, so the move may be answered before the client is gone:
+        # once the test waited for a window of "in flight" that planning got too fast to show)
         goal = (arm.fk(sim.position) + np.array([0.0, 0.05, 0.05])).tolist()
         closed = _leaver(
             router,
             "leave/gupta3/move",
-            {"goal": {"target": goal}, "path": "line", "speed": 0.05, "rate_hz": 1000},
+            {"goal": {"target": goal}, "path": "line", "speed": 0.1, "rate_hz": 1000},
             tmp_path,
         )
-        wait_for(lambda: service.stats()["in_flight"] >= 1, timeout=30, what="the move to arrive")
+        wait_for(lambda: service.stats()["in_flight"] >= 1 or published, timeout=30, what="the move to arrive")
         assert closed.stdin is not None
         closed.stdin.write("leave\n")
         closed.stdin.flush()
@@ -190,8 +196,13 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
         # the move was accepted: it is published once, though nobody reads its reply; stop ends it
         wait_for(lambda: len(published) == 1, what="the move's trajectory")
         assert published[0]["kind"] == "move" and published[0]["path"] == "line"
+        wait_for(
+            lambda: any(e.get("event") == "accepted" and e.get("id") == published[0]["id"] for e in events),
+            what="the adapter's acceptance",
+        )
         stopped = client.stop("gupta3")
-        wait_for(lambda: len(estops) == 1 and estops[0]["id"] == stopped["id"], what="the stop")
+        wait_for(lambda: any(e["id"] == stopped["id"] for e in estops), what="the stop")
+        assert [e["id"] for e in estops] == [stopped["id"]]  # (no estop for a move nobody accepted)
         assert len(published) == 1  # (a stop goes out on estop: the adapter brakes from its own state)
         client.wait_until_still("gupta3", timeout=10)
         assert np.allclose(client.fk("gupta3", [0, 1, -1]).position, arm.fk([0, 1, -1]), atol=1e-15)
@@ -206,6 +217,7 @@ def test_a_client_that_leaves_mid_request(router: str, tmp_path: Path) -> None:
                 p.wait(10)
         client.close()
         sub.undeclare()
+        events_sub.undeclare()
         estop_sub.undeclare()
         sim.close()
         service.close()
