@@ -64,6 +64,12 @@ A = TypeVar("A")
 def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
     """``robot``'s actuators, every one a ``kind`` (what ``adapter`` drives), else :class:`BadRequest`."""
     acts = robot.actuators.actuators
+    if not acts:
+        raise BadRequest(
+            f"{robot.name} has no [[actuators]] in its robot.toml: the {adapter} adapter needs one per joint (what "
+            "drives it and how: docs/robot-format.md); without, the arm is served for IK, plans and --sim only",
+            field="robot",
+        )
     drives: list[A] = [a for a in acts if isinstance(a, kind)]
     if len(drives) != len(acts):
         what = kind.__name__.lower() + "s"

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import difflib
 import functools
+import logging
 import math
 import sys
 from pathlib import Path
@@ -35,6 +36,10 @@ else:  # pragma: no cover
 
 CATALOGUE_DIR = Path(__file__).resolve().parent
 _MISSING = object()
+# Where robot.toml gives no acceleration or jerk limit for a joint (documented in docs/robot-format.md):
+ACCELERATION_PER_VELOCITY = 4.0  # [1/s] acceleration = 4 x velocity limit
+JERK_PER_ACCELERATION = 10.0  # [1/s] jerk = 10 x acceleration: full speed from rest in 0.35 s
+log = logging.getLogger(__name__)
 
 
 class _Table:
@@ -121,9 +126,11 @@ class _Table:
     def finish(self) -> None:
         unknown = sorted(set(self.data) - self.used)
         if unknown:
+            near = difflib.get_close_matches(str(unknown[0]), sorted(self.used), n=1)
             raise self.error(
                 unknown[0],
-                f"unknown key; {'this table has' if self.used else 'no keys are expected here'}"
+                (f"unknown key (a misspelling of {near[0]!r}?)" if near else "unknown key")
+                + f"; {'this table has' if self.used else 'no keys are expected here'}"
                 + (f": {', '.join(sorted(self.used))}" if self.used else ""),
             )
 
@@ -214,7 +221,9 @@ class _Builder:
 
         n = len(joint_names)
         index = {j: i for i, j in enumerate(joint_names)}
-        limits = self._limits(model, joint_names, index, top.table("joints"), top.tables("coupled_limits"), urdf_name)
+        limits = self._limits(
+            model, joint_names, index, top.table("joints", {}), top.tables("coupled_limits"), urdf_name
+        )
         neutral = np.array(meta.vector("neutral", n, [0.0] * n, angle=True))
         bad = limits.violations(neutral)
         if bad:
@@ -293,15 +302,15 @@ class _Builder:
         for key in joints.data:
             if key not in index:
                 raise joints.error(key, f"is not a joint of this arm; joints: {', '.join(joint_names)}")
+        defaulted: set[str] = set()
         for i, name in enumerate(joint_names):
-            if not joints.has(name):
-                raise joints.error(name, "is required: every joint needs acceleration and jerk limits")
-            jt = joints.table(name)
+            jt = joints.table(name, {})
             lower[i] = jt.number("lower", lower[i], angle=True)
             upper[i] = jt.number("upper", upper[i], angle=True)
             velocity[i] = jt.number("velocity", velocity[i])
-            acceleration[i] = jt.number("acceleration", positive=True)
-            jerk[i] = jt.number("jerk", positive=True)
+            for key, into in (("acceleration", acceleration), ("jerk", jerk)):
+                if jt.raw(key, None) is not None:  # (optional: a default from the velocity limit, below)
+                    into[i] = jt.number(key, positive=True)
             jt.finish()
             if not (np.isfinite(lower[i]) and np.isfinite(upper[i]) and lower[i] < upper[i]):
                 raise jt.error(
@@ -312,8 +321,26 @@ class _Builder:
             if not (np.isfinite(velocity[i]) and velocity[i] > 0):
                 raise jt.error(
                     "velocity",
-                    f"must be positive: set <limit velocity> in {urdf_name} or 'velocity' here, got {velocity[i]}",
+                    f"must be positive: {urdf_name} gives {velocity[i]:g} rad/s (<limit velocity=...>); set your "
+                    f"arm's in robot.toml, [joints.{name}] velocity = ... [rad/s]",
                 )
+            if acceleration[i] == 0.0:
+                acceleration[i] = ACCELERATION_PER_VELOCITY * velocity[i]
+                defaulted.add(name)
+            if jerk[i] == 0.0:
+                jerk[i] = JERK_PER_ACCELERATION * acceleration[i]
+                defaulted.add(name)
+        if defaulted:
+            log.warning(
+                "%s: robot.toml gives no acceleration or jerk limit for %s: using %g x the velocity limit [1/s] "
+                "and %g x that (full speed from rest in %.2f s); set [joints.<name>] acceleration and jerk to "
+                "your arm's",
+                self.folder.name,
+                ", ".join(j for j in joint_names if j in defaulted),
+                ACCELERATION_PER_VELOCITY,
+                JERK_PER_ACCELERATION,
+                1.0 / ACCELERATION_PER_VELOCITY + 1.0 / JERK_PER_ACCELERATION,
+            )
         coupled = []
         for ct in coupled_tables:
             cname = ct.string("name")
@@ -411,8 +438,10 @@ class _Builder:
         default_range = servo_defaults.vector("pulse_range", 2, [500.0, 2500.0])
         servo_defaults.finish()
         tables = top.tables("actuators")
-        if not tables:
-            raise top.error("actuators", "is required: one [[actuators]] table per actuator")
+        if not tables:  # an arm for IK, plans and simulation: a hardware adapter refuses it (it says why)
+            if top.has("gripper"):
+                raise top.error("gripper", "needs [[actuators]]: a gripper is driven beside the joints' actuators")
+            return ActuatorMap((), np.zeros((0, n)), np.zeros(0)), None
         actuators: list[Actuator] = []
         rows = np.zeros((len(tables), n))
         offsets = np.zeros(len(tables))
