@@ -39,6 +39,7 @@ _MISSING = object()
 # Where robot.toml gives no acceleration or jerk limit for a joint (documented in docs/robot-format.md):
 ACCELERATION_PER_VELOCITY = 4.0  # [1/s] acceleration = 4 x velocity limit
 JERK_PER_ACCELERATION = 10.0  # [1/s] jerk = 10 x acceleration: full speed from rest in 0.35 s
+CONTINUOUS_RANGE = 2.0 * math.pi  # [rad] a continuous joint's limits, +-, unless robot.toml narrows them
 log = logging.getLogger(__name__)
 
 
@@ -219,6 +220,7 @@ class _Builder:
             if frame not in frames:
                 raise meta.error(key, f"{urdf_name} has no frame {frame!r}; frames: {', '.join(sorted(frames))}")
 
+        model = self._rooted_at(model, base_frame, meta, urdf_name)
         n = len(joint_names)
         index = {j: i for i, j in enumerate(joint_names)}
         limits = self._limits(
@@ -260,18 +262,44 @@ class _Builder:
         urdf_path = self.folder / urdf_name
         if not urdf_path.is_file():
             raise meta.error("urdf", f"{urdf_path} not found")
+        text = urdf_path.read_text()
         try:
-            return pin.buildModelFromUrdf(str(urdf_path), mimic=True)
-        except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++
+            text = _continuous_as_revolute(text, self.folder.name)
+            return pin.buildModelFromXML(text, mimic=True)
+        except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++; ElementTree ParseError
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
+
+    def _rooted_at(self, model: pin.Model, base_frame: str, meta: _Table, urdf_name: str) -> pin.Model:
+        """``model`` with ``base_frame`` as its world frame: targets, FK, plans and lines are in
+        the base frame wherever it sits in the URDF (it must be fixed to the URDF's root)."""
+        frame = model.frames[model.getFrameId(base_frame)]
+        if frame.parentJoint != 0:
+            raise meta.error(
+                "base_frame",
+                f"{base_frame!r} moves with joint {model.names[frame.parentJoint]!r}: the base frame must be fixed "
+                f"to {urdf_name}'s root (a link that no movable joint turns)",
+            )
+        if frame.placement.isIdentity(1e-12):
+            return model
+        inverse = frame.placement.inverse()
+        for j in range(1, model.njoints):
+            if model.parents[j] == 0:
+                model.jointPlacements[j] = inverse * model.jointPlacements[j]
+        for i in range(len(model.frames)):
+            if model.frames[i].parentJoint == 0:
+                model.frames[i].placement = inverse * model.frames[i].placement
+        return model
 
     def _check_joints(self, model: pin.Model, joint_names: tuple[str, ...], meta: _Table, urdf_name: str) -> None:
         actuated = [model.names[i] for i in range(1, model.njoints) if model.joints[i].nq > 0]
-        if model.nq != model.nv or any(model.joints[i].nq not in (0, 1) for i in range(1, model.njoints)):
+        odd = [i for i in range(1, model.njoints) if model.joints[i].nq not in (0, 1) or model.joints[i].nv > 1]
+        if model.nq != model.nv or odd:
+            name = model.names[odd[0]] if odd else "?"
             raise RobotFileError(
                 str(self.folder / urdf_name),
                 None,
-                "only revolute and prismatic joints (and mimic joints) are supported",
+                f"joint {name!r} is a {model.joints[odd[0]].shortname() if odd else 'joint'} joint: armd takes "
+                "revolute, continuous and prismatic joints (and mimic joints)",
             )
         if list(joint_names) != actuated:
             missing = [j for j in joint_names if j not in actuated]
@@ -558,6 +586,34 @@ class _Builder:
                 raise t.error("mount", f"must be 'scanner' or 'frame', got {mount!r}")
             t.finish()
         return out
+
+
+def _continuous_as_revolute(urdf: str, arm: str) -> str:
+    """``urdf`` with each continuous joint made revolute over [-2 pi, 2 pi] (a joint of ``q``
+    like any other: Pinocchio would give it two coordinates, cos and sin; the limits can be
+    narrowed in robot.toml, [joints.<name>] lower/upper). Said once, in the log."""
+    if 'type="continuous"' not in urdf and "type='continuous'" not in urdf:
+        return urdf
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(urdf)
+    changed = []
+    for joint in root.iter("joint"):
+        if joint.get("type") != "continuous":
+            continue
+        joint.set("type", "revolute")
+        limit = joint.find("limit")
+        if limit is None:
+            limit = ET.SubElement(joint, "limit", {"effort": "0", "velocity": "0"})
+        limit.set("lower", repr(-CONTINUOUS_RANGE))
+        limit.set("upper", repr(CONTINUOUS_RANGE))
+        changed.append(joint.get("name", "?"))
+    log.info(
+        "%s: continuous joint(s) %s: limits [-2 pi, 2 pi] rad (narrow them in robot.toml, [joints.<name>] lower/upper)",
+        arm,
+        ", ".join(changed),
+    )
+    return ET.tostring(root, encoding="unicode")
 
 
 def _row_range(row: np.ndarray, offset: float, limits: JointLimits) -> tuple[float, float]:

@@ -205,7 +205,7 @@ GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint ne
 # change within the limit (test_the_adapters_own_model_keeps_the_limits).
 ACCEL_BAR = 1.05
 SPEED_BAR = 1.01  # (the same rounding on a speed)
-BUSY_ACCEL_BAR = 1.1  # beside two busy processes: writes held up after they were aimed (this interpreter is busy too)
+BUSY_ACCEL_BAR = 1.1  # beside two busy processes on two cores: the adapter's writes held up after they were aimed
 
 
 def ratios(arm: robots.Robot, m: Motion, period: float, exact: bool = False) -> Any:
@@ -331,21 +331,23 @@ def test_the_adapters_own_model_keeps_the_limits(
 
 
 def test_busy_processes_do_not_break_the_promise(
-    client: ArmClient, service: object, adapter_session: zenoh.Session
+    router: str, client: ArmClient, service: object, tmp_path: Path
 ) -> None:
     """Two processes spinning beside the adapter (on a 2-core machine): late ticks re-time the
-    stream, never speed it up. The board is an emulator in a process of its own (a board has its
-    own CPU: in this interpreter it would stamp each command when its thread gets to run, late)."""
+    stream, never speed it up. The adapter runs as users run it, a process of its own (in this
+    interpreter, beside the service and the router, its loop would wait for their turns at the
+    interpreter as well); the board is an emulator in a process of its own (a board has its own
+    CPU)."""
     arm = robots.load("insomniac")
     burn = [
-        subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+20\nwhile time.time()<t: pass"])
+        subprocess.Popen([sys.executable, "-c", "import time\nt=time.time()+30\nwhile time.time()<t: pass"])
         for _ in range(2)
     ]
     try:
         with EmulatorProcess(SSC32Emulator) as emu:
-            adapter = SSC32Adapter(adapter_session, arm, emu.port)
+            proc = adapter_process(emu.port, router, tmp_path)
             try:
-                wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+                wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
                 time.sleep(0.1)
                 since = emu.clock()
                 r = client.move("insomniac", GOAL, wait=True, wait_timeout=20)
@@ -353,16 +355,12 @@ def test_busy_processes_do_not_break_the_promise(
                 m = ssc32_motion(arm, emu, since=since)  # type: ignore[arg-type]
                 rr = _ratios(arm, m, 0.02, ssc32_speed_noise(arm, emu, since))  # type: ignore[arg-type]
                 assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
-                # Each move is aimed within the limits for when the board will have it; a write held up
-                # after it was aimed (this interpreter also runs the service and the router) starts it a
-                # little later, from a little farther on: a change of speed a few percent sharper.
-                mine = ratios(arm, commanded(adapter), 0.02, exact=True)
-                assert mine.velocity <= 1.0 + 1e-6 and mine.acceleration <= 1.05, mine
                 assert rr.acceleration <= BUSY_ACCEL_BAR, rr
                 assert np.max(np.abs(m.position[-1] - np.array(GOAL))) < 3e-3
                 assert m.moving()[1] - m.moving()[0] <= 2.0 * r.duration + 0.5
             finally:
-                adapter.close()
+                proc.terminate()
+                proc.wait(10)
     finally:
         for p in burn:
             p.kill()

@@ -120,3 +120,62 @@ def test_served_with_a_simulated_arm(tmp_path: Path, router: str) -> None:
         sim.close()
         service.close()
         session.close()
+
+
+def test_a_continuous_joint_is_a_joint_of_q_over_two_turns(tmp_path: Path) -> None:
+    limits = '<limit lower="-1.5707963267948966" upper="1.5707963267948966" velocity="3.0" effort="1"/>'
+    after = '\n  </joint>\n  <link name="gripper">'  # (the roll's <limit>: the last joint's)
+    urdf_edits = (
+        ('<joint name="wrist_roll" type="revolute">', '<joint name="wrist_roll" type="continuous">'),
+        (limits + after, '<limit velocity="3.0" effort="1"/>' + after),
+    )
+    arm = robots.load_folder(_folder(tmp_path, urdf_edits=urdf_edits))
+    r = arm.joint_names.index("wrist_roll")
+    assert arm.model.nq == arm.nq == 5  # (not cos and sin: one coordinate)
+    assert arm.limits.lower[r] == -2 * np.pi and arm.limits.upper[r] == 2 * np.pi
+    q = np.array([0.2, 1.2, -1.0, -0.3, 4.0])  # (a roll past half a turn)
+    assert np.allclose(arm.fk(q), robots.load("insomniac").fk(np.array([0.2, 1.2, -1.0, -0.3, 4.0 - 2 * np.pi])))
+    assert solvers.solve_ik(arm, arm.fk(q)).status == "ok"
+    narrowed = robots.load_folder(
+        _folder(tmp_path / "narrow", MINIMAL + '[joints.wrist_roll]\nlower = "-pi"\nupper = "pi"\n', urdf_edits)
+    )
+    assert narrowed.limits.upper[r] == np.pi
+
+
+def test_a_joint_armd_does_not_take_is_named(tmp_path: Path) -> None:
+    edits = (('<joint name="wrist_roll" type="revolute">', '<joint name="wrist_roll" type="floating">'),)
+    with pytest.raises(RobotFileError) as e:
+        robots.load_folder(_folder(tmp_path, urdf_edits=edits))
+    assert "'wrist_roll'" in e.value.problem and "revolute, continuous and prismatic" in e.value.problem
+
+
+MOUNTED = (
+    '<robot name="insomniac">',
+    '<robot name="insomniac">\n  <link name="world"/>\n  <joint name="mount" type="fixed"><parent link="world"/>'
+    '<child link="base"/><origin xyz="0.1 0.2 0.05" rpy="0.1 0 1.5707963267948966"/></joint>',
+)
+
+
+def test_targets_are_in_the_base_frame_wherever_the_urdf_puts_it(tmp_path: Path) -> None:
+    """The arm mounted in its URDF under a 'world' link (moved, turned and tilted): with
+    base_frame = "base", FK, IK and lines are the catalogue arm's, in its base frame."""
+    arm = robots.load_folder(_folder(tmp_path, urdf_edits=(MOUNTED,)))
+    plain = robots.load_folder(_folder(tmp_path / "plain"))  # (the same folder, not mounted)
+    rng = np.random.default_rng(3)
+    for q in rng.uniform(plain.limits.lower, plain.limits.upper, size=(20, plain.nq)):
+        assert np.allclose(arm.fk(q), plain.fk(q), atol=1e-12)
+        assert abs(arm.tool_pitch(q) - plain.tool_pitch(q)) < 1e-9
+    q = np.array([0.2, 1.2, -1.0, -0.3, 0.1])
+    r = solvers.solve_ik(arm, plain.fk(q))
+    assert r.status == "ok" and np.linalg.norm(plain.fk(r.q) - plain.fk(q)) < 1e-6
+    world = robots.load_folder(
+        _folder(tmp_path / "world", MINIMAL.replace("[robot]\n", '[robot]\nbase_frame = "world"\n'), (MOUNTED,))
+    )
+    assert not np.allclose(world.fk(q), plain.fk(q), atol=1e-3)  # (the same arm, targets in the world frame)
+
+
+def test_a_base_frame_that_moves_is_refused(tmp_path: Path) -> None:
+    toml = MINIMAL.replace("[robot]\n", '[robot]\nbase_frame = "humerus"\n')
+    with pytest.raises(RobotFileError) as e:
+        robots.load_folder(_folder(tmp_path, toml))
+    assert e.value.field == "robot.base_frame" and "moves with joint" in e.value.problem
