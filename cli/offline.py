@@ -24,6 +24,7 @@ def cmd_catalogue(args: argparse.Namespace) -> int:
         reach = arm.fk(arm.neutral)
         print(f"{name}: {arm.title}")
         print(f"  neutral tool point [m]: ({reach[0]:.4f}, {reach[1]:.4f}, {reach[2]:.4f})")
+        print(f"  IK: {arm.solver}")
         print(f"  {'joint':<12} {'lower':>7} {'upper':>7}  deg   {'vmax':>6} {'amax':>6} {'jmax':>6}  (rad/s^k)")
         lim = arm.limits
         for i, j in enumerate(arm.joint_names):

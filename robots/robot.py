@@ -229,12 +229,27 @@ class Robot:
 
     # -- description -----------------------------------------------------------------------
 
+    @property
+    def solver(self) -> str:
+        """Which IK this arm gets, and why, in a line (``armd catalogue``, the ``info`` reply)."""
+        g = self.geometry
+        if g is None:
+            return (
+                "numerical: no [geometry] in robot.toml (armd does not find the closed form from the "
+                "chain by itself yet)"
+            )
+        pitches = 3 if g.has_wrist else 2
+        roll = " + roll" if self.nq > pitches + 1 else ""
+        held = ", the tool held level by a linkage" if g.level else ""
+        return f"closed form: yaw + {pitches} pitch{roll} (robot.toml [geometry]{held})"
+
     def describe(self) -> dict[str, object]:
         """A JSON-ready summary: joints, limits, actuators, sensors (the protocol's ``info``)."""
         lim = self.limits
         return {
             "name": self.name,
             "title": self.title,
+            "solver": self.solver,
             "joints": [
                 {
                     "name": n,

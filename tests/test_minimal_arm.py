@@ -179,3 +179,11 @@ def test_a_base_frame_that_moves_is_refused(tmp_path: Path) -> None:
     with pytest.raises(RobotFileError) as e:
         robots.load_folder(_folder(tmp_path, toml))
     assert e.value.field == "robot.base_frame" and "moves with joint" in e.value.problem
+
+
+def test_catalogue_and_info_say_which_solver_an_arm_gets_and_why(tmp_path: Path) -> None:
+    assert robots.load("insomniac").solver == "closed form: yaw + 3 pitch + roll (robot.toml [geometry])"
+    assert robots.load("gupta3").solver == "closed form: yaw + 2 pitch (robot.toml [geometry])"
+    assert "held level by a linkage" in robots.load("desk4").solver
+    mine = robots.load_folder(_folder(tmp_path))
+    assert mine.solver.startswith("numerical: no [geometry]") and mine.describe()["solver"] == mine.solver
