@@ -9,6 +9,10 @@ digest of the sources it was built from; if they changed since (a developer's ed
 was not built (no C compiler), or ``ARMD_NATIVE=0``, the same functions are compiled by Numba
 on first use instead, and cached.
 
+Unlike the JIT's (``nogil``), the native functions hold the interpreter while they run: a
+caller with a long call splits it (batch IK: :data:`armd.solvers.batch.CHUNK` targets a call),
+so that a move or a stop never waits behind a batch (tests/test_flood.py).
+
 The JIT's cache lives in a per-user folder (``$ARMD_CACHE_DIR``, else
 ``$XDG_CACHE_HOME/armd/numba``, else ``~/.cache/armd/numba``) under a hash of every compiled
 module's source and Numba's version, filed by module name rather than by the checkout's path:
