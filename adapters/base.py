@@ -152,6 +152,11 @@ class Adapter(ABC):
     def measure(self) -> JointState:
         """The arm's state: from the controller where it can tell, else as last commanded."""
 
+    def estimate(self) -> JointState:
+        """The arm's state without asking the controller anything (the control loop calls it
+        on every pass; the default, :meth:`measure`, for adapters whose measure sends nothing)."""
+        return self.measure()
+
     def check(self) -> None:
         """Raise :class:`ControllerFault` if the controller does not answer (called every check_period)."""
         return None
@@ -381,11 +386,12 @@ class Adapter(ABC):
             except Exception as e:  # a bug must not leave the arm moving unattended
                 log.exception("%s adapter error", self.kind)
                 self._faulted(f"adapter error: {type(e).__name__}: {e}", cmd)
-            known = self._refresh()  # (every pass: what a trajectory's start is checked against)
             if now >= next_state:
                 next_state = now + self.state_period
-                if known:
+                if self._refresh():
                     self._publish_state()
+            else:  # (every pass: what a trajectory's start is checked against)
+                self._refresh(ask=False)
             self._stop.wait(self.run_tick if cmd is not None and not finished else self.tick)
 
     def finished(self, cmd: Command) -> None:
@@ -429,13 +435,15 @@ class Adapter(ABC):
         if self._token is None:
             self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
 
-    def _refresh(self) -> bool:
-        """Where the arm is now (``_latest``; at rest unless a trajectory runs): False if the
+    def _refresh(self, ask: bool = True) -> bool:
+        """Where the arm is now (``_latest``; at rest unless a trajectory runs): from
+        :meth:`measure` (``ask``: at the state rate, what the controller is asked as before),
+        else from :meth:`estimate` (every pass, no traffic to the controller). False if the
         controller could not say."""
         with self._lock:
             cmd, finished = self._cmd, self._finished
         try:
-            s = self.measure()
+            s = self.measure() if ask else self.estimate()
         except Exception:  # the controller may be gone: the fault path reports it
             log.debug("measure failed", exc_info=True)
             return False

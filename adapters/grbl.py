@@ -666,6 +666,11 @@ class GrblAdapter(SerialAdapter):
             self._asked = time.monotonic()
         return JointState(self._joints(self._steps), self._v.copy(), self._a.copy())
 
+    def estimate(self) -> JointState:
+        """As :meth:`measure`, from GRBL's last status report, with no ``?`` sent: the loop's
+        every pass would double the status queries GRBL answers while it streams."""
+        return JointState(self._joints(self._steps), self._v.copy(), self._a.copy())
+
     def check(self) -> None:
         self._pump()
         if self._holding is not None and not self._streaming:

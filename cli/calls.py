@@ -11,7 +11,7 @@ from typing import Any
 
 from armd.clients import ArmClient
 
-from .common import approach, goal, numbers
+from .common import approach, goal, motion_args, numbers
 
 
 def _client(args: argparse.Namespace) -> ArmClient:
@@ -168,15 +168,6 @@ def _client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the reply as JSON")
 
 
-def _motion_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("robot")
-    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
-    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
-    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
-    p.add_argument("--path", choices=["joint", "line"], default="joint")
-    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
-
-
 def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p = sub.add_parser("robots", parents=[log_args], help="the arms a running service serves")
     _client_args(p)
@@ -197,14 +188,14 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.set_defaults(func=cmd_fk)
 
     p = sub.add_parser("plan", parents=[log_args], help="plan a trajectory on the service (nothing moves)")
-    _motion_args(p)
+    motion_args(p)
     p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector (default: where the arm is)")
     p.add_argument("--plot", metavar="FILE.png", help="also write a PNG of the trajectory (limits drawn)")
     _client_args(p)
     p.set_defaults(func=cmd_plan)
 
     p = sub.add_parser("move", parents=[log_args], help="move an arm (needs an adapter: hardware or --sim)")
-    _motion_args(p)
+    motion_args(p)
     p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
     _client_args(p)
     p.set_defaults(func=cmd_move)

@@ -64,6 +64,17 @@ def goal(args: argparse.Namespace) -> object:
     return {"target": numbers(args.target, "target"), "approach": approach(args.approach)}
 
 
+def motion_args(p: argparse.ArgumentParser) -> None:
+    """ROBOT, a goal (``--goal`` joints or ``--target`` point with ``--approach``), the path
+    and the speed: what :func:`goal` reads."""
+    p.add_argument("robot")
+    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
+    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
+    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
+    p.add_argument("--path", choices=["joint", "line"], default="joint")
+    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
+
+
 def network_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--listen",

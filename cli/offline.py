@@ -8,7 +8,7 @@ import json
 import math
 from typing import Any
 
-from .common import all_robots, goal, numbers, robot_named
+from .common import all_robots, goal, motion_args, numbers, robot_named
 
 
 def _deg(x: float) -> str:
@@ -86,13 +86,8 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p = sub.add_parser(
         "plot", parents=[log_args], help="plan a trajectory offline and write a PNG of it (limits drawn)"
     )
-    p.add_argument("robot")
+    motion_args(p)
     p.add_argument("--start", nargs="+", metavar="Q", help="start joint vector [rad] (default: neutral)")
-    p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
-    p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
-    p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
-    p.add_argument("--path", choices=["joint", "line"], default="joint")
-    p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
     p.add_argument("--rate", type=float, default=None, help="samples per second (default: the arm's)")
     p.add_argument("--out", default="trajectory.png", help="PNG file to write")
     p.add_argument("--robots-dir", help="a folder of your own arms")

@@ -17,8 +17,6 @@ import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
 
-import numpy as np
-
 from armd import planning, solvers
 from armd.errors import ArmdError, BadRequest, BatchTooLarge, NoAdapter, PositionUnknown, Rejected, StartMismatch
 from armd.planning import JointState
@@ -34,12 +32,10 @@ from .protocol import (
     NOTHING,
     PLAN,
     PROTOCOL_VERSION,
-    REPORT_POSITION_SLACK,
-    REPORT_SPEED_SLACK,
     Limits,
     check,
 )
-from .state import StateBook
+from .state import StateBook, implausible, reported_state
 
 Publish = Callable[[Robot, dict[str, Any]], Any]  # (a trajectory's: the id of the adapter that accepted it)
 AdapterCount = Callable[[Robot], int]
@@ -240,7 +236,7 @@ class Handlers:
 
 def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
     """The state an adapter gave with its ``start_mismatch`` refusal, if it is one and
-    plausible (finite, the arm's size, within the limits with the service's slack for reports);
+    believable as a report is (:func:`.state.reported_state`, :func:`.state.implausible`);
     else None."""
     if not isinstance(error, Mapping) or error.get("code") != StartMismatch.code:
         return None
@@ -248,13 +244,7 @@ def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
     if not isinstance(state, Mapping):
         return None
     try:
-        q, v, a = (np.asarray(state[k], dtype=float) for k in ("position", "velocity", "acceleration"))
-    except (KeyError, TypeError, ValueError):
+        there = reported_state(arm, state)
+    except ValueError:
         return None
-    if any(x.shape != (arm.nq,) or not np.all(np.isfinite(x)) for x in (q, v, a)):
-        return None
-    if not arm.limits.contains(q, tol=REPORT_POSITION_SLACK) or np.any(
-        np.abs(v) > arm.limits.velocity * REPORT_SPEED_SLACK
-    ):
-        return None
-    return JointState(q, v, a)
+    return None if implausible(arm, there) else there

@@ -103,10 +103,6 @@ def _depth(obj: object, level: int) -> int:
     return deepest
 
 
-REPORT_POSITION_SLACK = 0.05  # [rad] a reported position may be this far outside the limits (quantisation, noise)
-REPORT_SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
-
-
 def encode(obj: Mapping[str, Any]) -> bytes:
     """A reply as JSON bytes (NaN and infinities, which JSON lacks, become null; NumPy arrays
     become lists)."""

@@ -46,13 +46,12 @@ import orjson
 import zenoh
 
 from armd.errors import ArmdError, DeadlineExceeded, Internal, NoAdapter, Rejected, UnknownRobot, UnknownVerb
-from armd.planning import JointState
 from armd.robots import Robot
 
 from .deadline import Deadline
 from .handlers import Handlers
-from .protocol import REPORT_POSITION_SLACK, REPORT_SPEED_SLACK, VERBS, Limits, decode, encode, request_deadline
-from .state import StateBook
+from .protocol import VERBS, Limits, decode, encode, request_deadline
+from .state import StateBook, implausible, reported_state
 
 log = logging.getLogger(__name__)
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
@@ -405,16 +404,7 @@ class Service:
             adapter, seq = msg["adapter"], msg["seq"]
             if not isinstance(adapter, str) or not isinstance(seq, int) or isinstance(seq, bool):
                 raise ValueError("no adapter id or sequence number")
-            q = np.asarray(msg["position"], dtype=float)
-            v = np.asarray(msg.get("velocity", np.zeros(arm.nq)), dtype=float)
-            a = np.asarray(msg.get("acceleration", np.zeros(arm.nq)), dtype=float)
-            if (
-                q.shape != (arm.nq,)
-                or v.shape != (arm.nq,)
-                or a.shape != (arm.nq,)
-                or not (np.all(np.isfinite(q)) and np.all(np.isfinite(v)) and np.all(np.isfinite(a)))
-            ):
-                raise ValueError("bad shape or not finite")
+            state = reported_state(arm, msg)
         except (ValueError, KeyError, TypeError, AttributeError, orjson.JSONDecodeError):
             self._ignore(robot, "malformed")
             return
@@ -432,13 +422,11 @@ class Service:
         if last_seq is not None and seq <= last_seq:
             self._ignore(robot, "out of order or replayed")
             return
-        lim = arm.limits
-        if not lim.contains(q, tol=REPORT_POSITION_SLACK):
-            self._ignore(robot, "outside the limits")
+        why = implausible(arm, state)
+        if why is not None:
+            self._ignore(robot, why)
             return
-        if np.any(np.abs(v) > lim.velocity * REPORT_SPEED_SLACK):
-            self._ignore(robot, "faster than the limits")
-            return
+        lim, q = arm.limits, state.position
         last = self.book.last(robot, adapter)
         now = self.book.now()
         if last is not None:
@@ -449,7 +437,7 @@ class Service:
         with self._lock:
             self._seqs[(robot, adapter)] = seq
         homed = msg.get("homed", True) is not False
-        self.book.report(robot, JointState(q, v, a), bool(msg.get("moving", False)), homed, adapter=adapter)
+        self.book.report(robot, state, bool(msg.get("moving", False)), homed, adapter=adapter)
 
     def _ignore(self, robot: str, why: str) -> None:
         with self._lock:

@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -15,6 +17,35 @@ from armd.planning import JointState, Trajectory
 from armd.robots import Robot
 
 STALE_AFTER = 1.0  # [s] an adapter's state older than this is not trusted
+REPORT_POSITION_SLACK = 0.05  # [rad] a reported position may be this far outside the limits (quantisation, noise)
+REPORT_SPEED_SLACK = 1.25  # a reported speed may be this many times the limit (finite differences of a measure)
+
+
+def reported_state(robot: Robot, report: Mapping[str, Any]) -> JointState:
+    """The state an adapter reports (``position``, and ``velocity`` and ``acceleration``, zero
+    if absent): ValueError unless each is ``robot.nq`` finite numbers."""
+    zeros = np.zeros(robot.nq)
+    try:
+        q, v, a = (
+            np.asarray(report[k] if k == "position" else report.get(k, zeros), dtype=float)
+            for k in ("position", "velocity", "acceleration")
+        )
+    except (KeyError, TypeError, AttributeError) as e:
+        raise ValueError(f"not a state: {e}") from None
+    if any(x.shape != (robot.nq,) or not np.all(np.isfinite(x)) for x in (q, v, a)):
+        raise ValueError("bad shape or not finite")
+    return JointState(q, v, a)
+
+
+def implausible(robot: Robot, state: JointState) -> str | None:
+    """Why a reported state cannot be so (outside the limits, or faster than them, beyond the
+    slack a measure has), or None."""
+    lim = robot.limits
+    if not lim.contains(state.position, tol=REPORT_POSITION_SLACK):
+        return "outside the limits"
+    if np.any(np.abs(state.velocity) > lim.velocity * REPORT_SPEED_SLACK):
+        return "faster than the limits"
+    return None
 
 
 @dataclass(frozen=True)
