@@ -2,7 +2,7 @@
 
 >>> from armd import robots
 >>> robots.names()
-['desk4', 'gupta3', 'insomniac', 'sg5ut']
+['desk4', 'gupta3', 'insomniac', 'sg5ut', 'so101']
 >>> arm = robots.load("gupta3")
 >>> arm.fk([0.0, 0.0, 0.0]).round(3).tolist()
 [0.28, 0.0, 0.0]

@@ -23,6 +23,7 @@ import pinocchio as pin
 from armd.errors import RobotFileError, UnknownRobot
 
 from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
+from .chain import recognise
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .robot import Robot
@@ -206,6 +207,7 @@ class _Builder:
         urdf_name = meta.string("urdf", "robot.urdf")
         base_frame = meta.string("base_frame", "base")
         tool_frame = meta.string("tool_frame", "tool")
+        tool_axis = _tool_axis(meta)
         joints_raw = meta.raw("joints")
         if not (isinstance(joints_raw, list) and joints_raw and all(isinstance(j, str) for j in joints_raw)):
             raise meta.error("joints", f"must be a non-empty list of URDF joint names, got {joints_raw!r}")
@@ -214,7 +216,9 @@ class _Builder:
             raise meta.error("joints", "lists a joint twice")
 
         model = self._load_urdf(urdf_name, meta)
-        self._check_joints(model, joint_names, meta, urdf_name)
+        held = self._check_joints(model, joint_names, meta, urdf_name)
+        if held:
+            model = self._load_urdf(urdf_name, meta, held)
         frames = {f.name for f in model.frames}
         for key, frame in (("base_frame", base_frame), ("tool_frame", tool_frame)):
             if frame not in frames:
@@ -232,7 +236,13 @@ class _Builder:
             raise meta.error("neutral", f"is outside the limits: {bad[0].message}")
         meta.finish()
 
-        geometry = self._geometry(top, index, model, tool_frame, limits) if top.has("geometry") else None
+        if top.has("geometry"):
+            geometry: Geometry | None = self._geometry(top, index, model, tool_frame, limits)
+            assert geometry is not None
+            family_note = _shape(geometry, n)
+        else:
+            found = recognise(model, tool_frame, joint_names, limits, neutral, tool_axis)
+            geometry, family_note = found.geometry, found.reason
         actuators, gripper = self._actuators(top, index, limits)
         sensors = self._sensors(top, frames)
         controller: dict[str, object] = {}
@@ -256,15 +266,19 @@ class _Builder:
             sensors=sensors,
             neutral=neutral,
             controller=controller,
+            family_note=family_note,
+            tool_axis=tool_axis,
         )
 
-    def _load_urdf(self, urdf_name: str, meta: _Table) -> pin.Model:
+    def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:
         urdf_path = self.folder / urdf_name
         if not urdf_path.is_file():
             raise meta.error("urdf", f"{urdf_path} not found")
         text = urdf_path.read_text()
         try:
             text = _continuous_as_revolute(text, self.folder.name)
+            if held:
+                text = _held_fixed(text, held)
             return pin.buildModelFromXML(text, mimic=True)
         except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++; ElementTree ParseError
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
@@ -290,7 +304,11 @@ class _Builder:
                 model.frames[i].placement = inverse * model.frames[i].placement
         return model
 
-    def _check_joints(self, model: pin.Model, joint_names: tuple[str, ...], meta: _Table, urdf_name: str) -> None:
+    def _check_joints(
+        self, model: pin.Model, joint_names: tuple[str, ...], meta: _Table, urdf_name: str
+    ) -> dict[str, float]:
+        """The movable joints of the URDF that ``joints`` does not list (a gripper's jaw, say),
+        each with the value it is held at: 0, or its limit nearer 0."""
         actuated = [model.names[i] for i in range(1, model.njoints) if model.joints[i].nq > 0]
         odd = [i for i in range(1, model.njoints) if model.joints[i].nq not in (0, 1) or model.joints[i].nv > 1]
         if model.nq != model.nv or odd:
@@ -301,16 +319,28 @@ class _Builder:
                 f"joint {name!r} is a {model.joints[odd[0]].shortname() if odd else 'joint'} joint: armd takes "
                 "revolute, continuous and prismatic joints (and mimic joints)",
             )
-        if list(joint_names) != actuated:
-            missing = [j for j in joint_names if j not in actuated]
-            if missing:
-                raise meta.error(
-                    "joints",
-                    f"{urdf_name} has no movable joint {missing[0]!r}; its movable joints are: {', '.join(actuated)}",
-                )
+        missing = [j for j in joint_names if j not in actuated]
+        if missing:
             raise meta.error(
-                "joints", f"must list every movable joint of {urdf_name} in chain order: {', '.join(actuated)}"
+                "joints",
+                f"{urdf_name} has no movable joint {missing[0]!r}; its movable joints are: {', '.join(actuated)}",
             )
+        listed = [j for j in actuated if j in joint_names]
+        if listed != list(joint_names):
+            raise meta.error("joints", f"must list the joints in {urdf_name}'s chain order: {', '.join(listed)}")
+        held = {}
+        for name in actuated:
+            if name not in joint_names:
+                iq = model.joints[model.getJointId(name)].idx_q
+                held[name] = float(min(max(0.0, model.lowerPositionLimit[iq]), model.upperPositionLimit[iq]))
+        if held:
+            log.debug(
+                "%s: %s not in robot.toml's joints: held at %s [rad or m]",
+                self.folder.name,
+                ", ".join(held),
+                ", ".join(f"{v:g}" for v in held.values()),
+            )
+        return held
 
     def _limits(
         self,
@@ -586,6 +616,70 @@ class _Builder:
                 raise t.error("mount", f"must be 'scanner' or 'frame', got {mount!r}")
             t.finish()
         return out
+
+
+_AXES = {"x": 0, "y": 1, "z": 2}
+
+
+def _tool_axis(meta: _Table) -> np.ndarray:
+    """``[robot] tool_axis``: "+x" (the default), "-y", ... or a vector in the tool frame."""
+    raw = meta.raw("tool_axis", "+x")
+    if isinstance(raw, str):
+        text = raw.strip().lower()
+        sign = -1.0 if text.startswith("-") else 1.0
+        name = text.lstrip("+-")
+        if name not in _AXES:
+            raise meta.error("tool_axis", f"must be one of +x, -x, +y, -y, +z, -z or a vector [x, y, z], got {raw!r}")
+        axis = np.zeros(3)
+        axis[_AXES[name]] = sign
+        return axis
+    v = np.array(meta.vector("tool_axis", 3))
+    norm = float(np.linalg.norm(v))
+    if norm < 1e-9:
+        raise meta.error("tool_axis", f"must not be zero, got {raw!r}")
+    return v / norm
+
+
+def _shape(g: Geometry, n: int) -> str:
+    """The family's shape in words ("yaw + 3 pitch + roll")."""
+    pitches = 3 if g.has_wrist else 2
+    return f"yaw + {pitches} pitch" + (" + roll" if n > pitches + 1 else "")
+
+
+def _held_fixed(urdf: str, held: dict[str, float]) -> str:
+    """``urdf`` with each joint of ``held`` made fixed at its value (its origin moved by it)."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.fromstring(urdf)
+    for joint in root.iter("joint"):
+        name = joint.get("name", "")
+        if name not in held:
+            continue
+        origin = joint.find("origin")
+        xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+        rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+        axis_el = joint.find("axis")
+        axis = np.array([float(v) for v in (axis_el.get("xyz", "1 0 0") if axis_el is not None else "1 0 0").split()])
+        axis /= np.linalg.norm(axis)
+        value = held[name]
+        moved = pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
+        if joint.get("type") == "prismatic":
+            moved = moved * pin.SE3(np.eye(3), axis * value)
+        else:
+            moved = moved * pin.SE3(pin.AngleAxis(value, axis).matrix(), np.zeros(3))
+        for child in list(joint):
+            if child.tag in ("axis", "limit", "dynamics", "safety_controller", "calibration", "origin"):
+                joint.remove(child)
+        joint.set("type", "fixed")
+        ET.SubElement(
+            joint,
+            "origin",
+            {
+                "xyz": " ".join(repr(float(v)) for v in moved.translation),
+                "rpy": " ".join(repr(float(v)) for v in pin.rpy.matrixToRpy(moved.rotation)),
+            },
+        )
+    return ET.tostring(root, encoding="unicode")
 
 
 def _continuous_as_revolute(urdf: str, arm: str) -> str:

@@ -45,7 +45,11 @@ class Robot:
         limits: position (box and coupled), velocity, acceleration and jerk limits.
         actuators: the actuator map ``a = M q + b`` and each actuator's command units.
         gripper: the gripper actuator, if any.
-        geometry: parameters of the closed-form solver's family, if the arm belongs to it.
+        geometry: parameters of the closed-form solver's family, if the arm belongs to it
+            (found from the chain, or robot.toml's ``[geometry]``).
+        family_note: how the arm's chain was read: its shape ("yaw + 3 pitch + roll"), or why
+            it is not of the family.
+        tool_axis: the tool axis in the tool frame (unit; +x unless robot.toml names another).
         sensors: range sensors by name.
         neutral: the rest configuration [rad].
         model: the Pinocchio model built from ``robot.urdf`` (mimic joints resolved).
@@ -68,6 +72,8 @@ class Robot:
         sensors: dict[str, RangeSensor],
         neutral: FloatArray,
         controller: dict[str, object],
+        family_note: str = "",
+        tool_axis: FloatArray | None = None,
     ) -> None:
         self.name = name
         self.title = title
@@ -84,6 +90,10 @@ class Robot:
         self.sensors = sensors
         self.neutral = neutral
         self.controller = controller
+        self.family_note = family_note
+        self.tool_axis = np.array([1.0, 0.0, 0.0]) if tool_axis is None else np.asarray(tool_axis, dtype=float)
+        # state the layers above derive from the arm, made once and kept with it (the solver's arrays)
+        self.derived: dict[str, object] = {}
         self._local = threading.local()
 
     def __repr__(self) -> str:
@@ -143,7 +153,7 @@ class Robot:
         return ToolPose(np.array(placement.translation), self._pitch(qa, placement.rotation))
 
     def tool_pitch(self, q: Sequence[float] | FloatArray) -> float:
-        """Angle [rad] of the tool axis (the tool frame's +x) to the horizontal, in [-pi, pi).
+        """Angle [rad] of the tool axis (:attr:`tool_axis`) to the horizontal, in [-pi, pi).
 
         Measured in the arm's vertical plane (forward is the yaw direction), so a tool
         pointing back and down has a pitch beyond -pi/2. 0 is level ("parallel"), -pi/2
@@ -153,11 +163,11 @@ class Robot:
         return self._pitch(qa, self._tool_placement(qa).rotation)
 
     def _pitch(self, q: FloatArray, rotation: FloatArray) -> float:
-        d = rotation[:, 0]
+        d = rotation @ self.tool_axis
         if self.geometry is None:
             return wrap(math.atan2(d[2], math.hypot(d[0], d[1])))
-        yaw = q[self.geometry.yaw]
-        return wrap(math.atan2(d[2], d[0] * math.cos(yaw) + d[1] * math.sin(yaw)))
+        heading = self.geometry.heading(q)
+        return wrap(math.atan2(d[2], d[0] * math.cos(heading) + d[1] * math.sin(heading)))
 
     def jacobian(self, q: Sequence[float] | FloatArray) -> FloatArray:
         """Jacobian of the tool point [m/rad], shape (3, nq), in ``base`` axes."""
@@ -234,14 +244,9 @@ class Robot:
         """Which IK this arm gets, and why, in a line (``armd catalogue``, the ``info`` reply)."""
         g = self.geometry
         if g is None:
-            return (
-                "numerical: no [geometry] in robot.toml (armd does not find the closed form from the "
-                "chain by itself yet)"
-            )
-        pitches = 3 if g.has_wrist else 2
-        roll = " + roll" if self.nq > pitches + 1 else ""
+            return f"numerical: {self.family_note}"
         held = ", the tool held level by a linkage" if g.level else ""
-        return f"closed form: yaw + {pitches} pitch{roll} (robot.toml [geometry]{held})"
+        return f"closed form: {self.family_note} ({g.source}{held})"
 
     def describe(self) -> dict[str, object]:
         """A JSON-ready summary: joints, limits, actuators, sensors (the protocol's ``info``)."""

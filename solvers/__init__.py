@@ -8,7 +8,6 @@
 """
 
 from .batch import BatchIKResult, reachable, solve_ik_batch
-from .geometric import FamilyParams
 from .ik import DEFAULT_TOLERANCE, solve_ik
 from .qp import QPRefiner, Refined
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
@@ -23,7 +22,6 @@ __all__ = [
     "UNREACHABLE",
     "BatchIKResult",
     "Branch",
-    "FamilyParams",
     "IKResult",
     "QPRefiner",
     "Refined",

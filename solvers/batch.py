@@ -24,8 +24,9 @@ from armd.robots.angles import wrap_array
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_many
+from .arm import ArmState, arm_state
 from .geometric import BRANCH_NAMES
-from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _Arm, _arm, _closest, _solve_numerical, solve_ik
+from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _closest, _solve_numerical, solve_ik
 from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
 from .target import approach_pitch
 
@@ -68,7 +69,7 @@ CHUNK = 128  # targets per compiled call (about 0.3 ms): the native build holds 
 
 
 def _solve_many(
-    arm: _Arm,
+    arm: ArmState,
     refs: FloatArray,
     pts: FloatArray,
     prefs: FloatArray,
@@ -82,20 +83,11 @@ def _solve_many(
     """:func:`solve_many` over the rows, :data:`CHUNK` at a time: between chunks the other
     threads run (a move, a stop, an adapter's state), instead of waiting behind 10,000 targets.
     The chunks are views: each call writes into the caller's arrays."""
-    fp = arm.fp
-    assert fp is not None  # (a family arm: the compiled stage's)
+    assert arm.arrays is not None  # (a family arm: the compiled stage's)
     for a in range(0, len(pts), CHUNK):
         b = a + CHUNK
         solve_many(
-            fp.P,
-            fp.J,
-            arm.lower,
-            arm.upper,
-            arm.weights,
-            arm.C,
-            arm.clo,
-            arm.chi,
-            arm.exact_pitch_search,
+            arm.arrays,
             refs[a:b],
             pts[a:b],
             prefs[a:b],
@@ -141,7 +133,7 @@ def solve_ik_batch(
 
     Raises :class:`BadRequest` (and solves nothing) when any input is malformed.
     """
-    arm = _arm(robot)
+    arm = arm_state(robot)
     pts = _targets(targets)
     m, n = len(pts), robot.nq
     per_target = isinstance(approach, (list, tuple, np.ndarray))
@@ -182,14 +174,13 @@ def solve_ik_batch(
     err = np.empty(m)
     reached = np.empty((m, 3))
     pitch_out = np.empty(m)
-    if arm.fp is None:
+    if arm.arrays is None:
         for i in range(m):
             if check is not None:
                 check()
             _store(i, _solve_numerical(arm, pts[i], refs[i], tolerance), status, branch, q, err, reached, pitch_out)
         return BatchIKResult(status, q, err, reached, pitch_out, branch)
 
-    fp = arm.fp
     if per_target:
         prefs = np.ascontiguousarray(pitches.reshape(m, 1))
     else:
@@ -202,11 +193,7 @@ def solve_ik_batch(
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
     branch[good] = np.array(BRANCH_NAMES)[ids[good]]
-    if robot.geometry is not None and robot.geometry.level:
-        pitch_out[good] = 0.0
-    else:  # the family's tool pitch: the sum of the pitch joints
-        pitch_sum = q[good][:, [int(j) for j in fp.J[1:] if j >= 0]].sum(axis=1)
-        pitch_out[good] = wrap_array(pitch_sum)
+    pitch_out[good] = wrap_array(pitch_out[good])  # (the compiled stage's tool pitch, unwrapped)
     for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
         if check is not None:
             check()
@@ -249,10 +236,10 @@ def reachable(
     unreachable target's answer needs (so a mostly unreachable grid costs what a reachable
     one does). Arms outside the exact closed form take :func:`solve_ik_batch` itself.
     """
-    arm = _arm(robot)
+    arm = arm_state(robot)
     pts = _targets(targets)
     pitch = approach_pitch(robot, approach)
-    if arm.fp is None or not arm.exact:
+    if arm.arrays is None or not arm.exact:
         ok: NDArray[np.bool_] = solve_ik_batch(robot, pts, approach=approach, tolerance=tolerance).status == OK
         return ok
     m, n = len(pts), robot.nq

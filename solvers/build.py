@@ -19,7 +19,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPILED = {
-    "solvers": ("activeset", "analytic", "closest", "family", "geometric", "jit", "limits", "pitch"),
+    "solvers": ("activeset", "analytic", "arrays", "closest", "family", "geometric", "jit", "limits", "pitch"),
     "planning": ("compiled",),
     "robots": ("angles", "types"),
 }
@@ -48,6 +48,10 @@ def build(target: Path) -> None:
         from numba.pycc import CC
 
         jit = importlib.import_module("armd.solvers.jit")
+        import numba
+
+        named = importlib.import_module("armd.solvers.arrays").numba_types()
+        names = {**vars(numba.types), **named}
         for layer, modules in COMPILED.items():
             for name in modules:
                 importlib.import_module(f"armd.{layer}.{name}")
@@ -56,7 +60,7 @@ def build(target: Path) -> None:
         cc.output_file = target.name
         cc.target_cpu = "host"  # (built where it runs: pip builds it on the machine it installs on)
         for name, (dispatcher, signature) in sorted(jit.ENTRIES.items()):
-            cc.export(name, signature)(dispatcher.py_func)
+            cc.export(name, eval(signature, {}, names))(dispatcher.py_func)  # (a signature names a named tuple)
         digest = jit.native_digest_number(jit.source_digest())
 
         def source_digest() -> int:

@@ -22,6 +22,7 @@ from armd.robots.types import FloatArray
 
 from .activeset import solve_qp
 from .analytic import NONE, solve_one
+from .arrays import Arm, Family, family_pitch, from_family, to_family, view
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import entry, jit
 from .limits import limits_ok
@@ -35,8 +36,9 @@ ALPHA_STEP = math.pi / 32  # [rad] sampling of the target's bearing in the arm f
 
 
 @jit
-def family_jacobian(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) -> None:
+def family_jacobian(f: Family, q: FloatArray, out: FloatArray) -> None:
     """d(tool point)/dq [m/rad] of the family's FK into ``out`` (3, n); zero for other joints."""
+    P, J = f.P, f.J
     py, l1, l2, l3 = P[1], P[3], P[4], P[5]
     out[:] = 0.0
     yaw = q[J[0]]
@@ -69,30 +71,18 @@ def family_jacobian(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) 
 
 
 @jit
-def _cost(
-    P: FloatArray, J: IntArray, q: FloatArray, target: FloatArray, pitch: float, w2: float, p: FloatArray
-) -> tuple[float, float]:
-    family_fk(P, J, q, p)
+def _cost(f: Family, q: FloatArray, target: FloatArray, pitch: float, w2: float, p: FloatArray) -> tuple[float, float]:
+    family_fk(f, q, p)
     e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
     perr = 0.0
     if w2 > 0.0:
-        s = 0.0
-        for k in range(1, 4):
-            if J[k] >= 0:
-                s += q[J[k]]
-        perr = wrap_angle(pitch - s)
+        perr = wrap_angle(pitch - family_pitch(f, q))
     return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
 
 
-@entry("Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], f8, f8, f8[:], i8, f8, f8)")
+@entry("Tuple((f8, f8, i8))(Family, f8[:], f8, f8, f8[:], i8, f8, f8)")
 def refine_family(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
+    f: Family,
     target: FloatArray,
     pitch: float,
     w2: float,
@@ -102,7 +92,9 @@ def refine_family(
     tol: float,
 ) -> tuple[float, float, int]:
     """Levenberg-Marquardt from ``q`` (within limits), in place: (position error [m], pitch error
-    [rad], iterations). ``w2 > 0`` adds the pitch task (sum of pitch joints) with that weight^2."""
+    [rad], iterations). ``w2 > 0`` adds the pitch task (sum of pitch joints) with that weight^2.
+    The family's angles and frame throughout."""
+    J, lower, upper, C, clo, chi = f.J, f.lower, f.upper, f.C, f.clo, f.chi
     n = q.shape[0]
     p = np.empty(3)
     Jac = np.empty((3, n))
@@ -117,7 +109,7 @@ def refine_family(
     cu = np.empty(kc)
     dq = np.empty(n)
     qn = np.empty(n)
-    cost, perr = _cost(P, J, q, target, pitch, w2, p)
+    cost, perr = _cost(f, q, target, pitch, w2, p)
     mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
     nu = 2.0
     it = 0
@@ -126,7 +118,7 @@ def refine_family(
         if err <= tol and abs(perr) <= tol:
             break
         it += 1
-        family_jacobian(P, J, q, Jac)
+        family_jacobian(f, q, Jac)
         e = target - p
         H = Jac.T @ Jac
         g = -(Jac.T @ e)
@@ -155,10 +147,10 @@ def refine_family(
                 continue
             for i in range(n):
                 qn[i] = min(max(q[i] + dq[i], lower[i]), upper[i])
-            cost_new, perr_new = _cost(P, J, qn, target, pitch, w2, p)
+            cost_new, perr_new = _cost(f, qn, target, pitch, w2, p)
             # gain ratio: actual decrease over the decrease the quadratic model predicts
             predicted = float(-(g @ dq) - 0.5 * (dq @ (H @ dq)))
-            if cost_new < cost and limits_ok(qn, lower, upper, C, clo, chi, 0.0):
+            if cost_new < cost and limits_ok(qn, f, 0.0):
                 rho = 0.5 * (cost - cost_new) / max(predicted, 1e-300)
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
@@ -167,7 +159,7 @@ def refine_family(
             mu *= nu
             nu *= 2.0
         if not accepted:
-            _cost(P, J, q, target, pitch, w2, p)
+            _cost(f, q, target, pitch, w2, p)
             break
         progress = cost - cost_new
         q[:] = qn
@@ -182,9 +174,7 @@ def refine_family(
 
 
 @jit
-def _planar_rows(
-    J: IntArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray, chi: FloatArray, rows: FloatArray
-) -> int:
+def _planar_rows(f: Family, rows: FloatArray) -> int:
     """The limits on the shoulder and elbow angles (t1, t2) as rows ``lo <= a1 t1 + a2 t2 <= hi``
     into ``rows`` (k, 4), (a1, a2) one of (1, 0), (0, 1), (1, 1): the box, then the coupled limits
     (MARGIN inside, as the iteration keeps them, so rounding never leaves them).
@@ -194,7 +184,8 @@ def _planar_rows(
     form. Returns the number of rows, or -1 for a limit of another kind (a coupled limit touching
     the yaw or another joint, or mixing t1 and t2 otherwise; a joint without finite limits).
     """
-    j1, j2 = J[1], J[2]
+    lower, upper, C, clo, chi = f.lower, f.upper, f.C, f.clo, f.chi
+    j1, j2 = f.J[1], f.J[2]
     if not (
         math.isfinite(lower[j1]) and math.isfinite(upper[j1]) and math.isfinite(lower[j2]) and math.isfinite(upper[j2])
     ):
@@ -450,18 +441,7 @@ def _edge_minima(
 
 
 @jit
-def closest_level(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
-    target: FloatArray,
-    ref: FloatArray,
-    q_out: FloatArray,
-) -> float:
+def closest_level(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatArray) -> float:
     """The closest configuration within every limit for an arm without a wrist, with a lateral
     pivot offset py and coupled limits on the shoulder and elbow (desk4), by enumerating every
     stationary point: (error [m]), or -1 where this does not apply.
@@ -479,8 +459,9 @@ def closest_level(
     (:func:`_edge_minima`). Every candidate is evaluated with its best yaw; the nearest is the
     optimum. Returns -1 for limits of another kind (:func:`_planar_rows`) or an empty polygon.
     """
-    rows = np.empty((2 + C.shape[0], 4))
-    nr = _planar_rows(J, lower, upper, C, clo, chi, rows)
+    P, J, lower, upper = f.P, f.J, f.lower, f.upper
+    rows = np.empty((2 + f.C.shape[0], 4))
+    nr = _planar_rows(f, rows)
     if nr < 0:
         return -1.0
     n_straight = max(0, math.floor(rows[1, 3] / math.pi) - math.ceil(rows[1, 2] / math.pi) + 1)
@@ -522,29 +503,15 @@ def closest_level(
     for i in range(ref.shape[0]):
         q_out[i] = min(max(ref[i], lower[i]), upper[i])
     q_out[yj], q_out[J[1]], q_out[J[2]] = best[1], best[2], best[3]
-    if not limits_ok(q_out, lower, upper, C, clo, chi, 0.0):
+    if not limits_ok(q_out, f, 0.0):
         return -1.0
     p = np.empty(3)
-    family_fk(P, J, q_out, p)
+    family_fk(f, q_out, p)
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
-@entry("f8(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, f8[:], f8[:], f8[:], b1)")
-def closest_box(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
-    weights: FloatArray,
-    exact_pitch_search: bool,
-    target: FloatArray,
-    ref: FloatArray,
-    q_out: FloatArray,
-    prune: bool,
-) -> float:
+@entry("f8(Family, f8[:], f8[:], f8[:], b1)")
+def closest_box(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
     """The closest configuration within the box limits, any tool pitch, by enumerating every
     stationary point: (error [m]), or -1 where this does not apply. ``prune`` False visits every
     candidate (the tests hold the pruned search to it).
@@ -564,11 +531,13 @@ def closest_box(
     can. The best candidate within limits is the optimum. An arm without a wrist that has a
     lateral pivot offset or coupled limits goes to :func:`closest_level`. Returns -1 (the
     iteration answers) for a wrist arm with a lateral pivot offset, a degenerate chain, a
-    coupled limit the best one breaks, or a projection the closed form cannot decide.
+    coupled limit the best one breaks, or a projection the closed form cannot decide. The
+    family's angles and frame throughout.
     """
+    P, J, lower, upper = f.P, f.J, f.lower, f.upper
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
-    if J[3] < 0 and (py != 0.0 or C.shape[0] > 0):
-        return closest_level(P, J, lower, upper, C, clo, chi, target, ref, q_out)
+    if J[3] < 0 and (py != 0.0 or f.C.shape[0] > 0):
+        return closest_level(f, target, ref, q_out)
     if py != 0.0:
         return -1.0
     nj = 3 if J[3] >= 0 else 2
@@ -633,28 +602,9 @@ def closest_box(
         if lateral > 1e-12 and (tu - cu) ** 2 + (z - cz) ** 2 <= reach * reach:
             # the yaw is held at a limit and the target's projection on the arm's plane may be
             # reached exactly (a case the collinearity does not cover): ask the closed form
-            if not exact_pitch_search:
+            if not f.exact_pitch_search:
                 return -1.0  # (it is complete only where no coupled limit touches a pitch joint)
-            code, m, _ = solve_one(
-                P,
-                J,
-                lower,
-                upper,
-                weights,
-                C,
-                clo,
-                chi,
-                exact_pitch_search,
-                ref,
-                tu * math.cos(psi),
-                tu * math.sin(psi),
-                z,
-                FREE_PREFS,
-                qs,
-                ids,
-                errs,
-                work,
-            )
+            code, m, _ = solve_one(f, ref, tu * math.cos(psi), tu * math.sin(psi), z, FREE_PREFS, qs, ids, errs, work)
             if code != NONE and lateral * lateral < best - 1e-30:
                 best = lateral * lateral
                 q_out[:] = qs[0]
@@ -738,26 +688,15 @@ def closest_box(
                 for k in range(nj):
                     q[J[k + 1]] = theta[k]
                 q_out[:] = q
-    if best >= 1e300 or not limits_ok(q_out, lower, upper, C, clo, chi, 0.0):
+    if best >= 1e300 or not limits_ok(q_out, f, 0.0):
         return -1.0
-    family_fk(P, J, q_out, p)
+    family_fk(f, q_out, p)
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
-@entry(
-    "Tuple((f8, f8, i8))(f8[:], i8[:], f8[:], f8[:], f8[:, :], f8[:], f8[:], f8[:], b1, "
-    "f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])"
-)
+@entry("Tuple((f8, f8, i8))(Arm, f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])")
 def closest_family(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
-    weights: FloatArray,
-    exact_pitch_search: bool,
+    arm: Arm,
     target: FloatArray,
     pitch: float,
     w2: float,
@@ -767,15 +706,25 @@ def closest_family(
     n_atlas: int,
     q_out: FloatArray,
 ) -> tuple[float, float, int]:
-    """The enumerated optimum where it applies (:func:`closest_box`, free pitch only); else
-    the best of :func:`refine_family` from ``ref`` (if within limits) and
-    the ``n_atlas`` atlas configurations whose tool points are nearest the target:
-    (error, pitch error, iterations)."""
-    if w2 == 0.0:
-        err = closest_box(P, J, lower, upper, C, clo, chi, weights, exact_pitch_search, target, ref, q_out, True)
-        if err >= 0.0:
-            return err, 0.0, 0
+    """The closest configuration within limits to ``target`` (``base``), with tool pitch
+    ``pitch`` weighed by ``w2`` (0: any pitch), into ``q_out`` (the URDF's angles): the
+    enumerated optimum where it applies (:func:`closest_box`, free pitch only); else the best of
+    :func:`refine_family` from ``ref`` (if within limits) and the ``n_atlas`` atlas configurations
+    (the URDF's angles; tool points ``atlas_p`` in ``base``) whose tool points are nearest the
+    target, their joints outside the family kept at ``ref``'s: (error, pitch error, iterations)."""
+    f, zero, offset = view(arm, ref)
     n = ref.shape[0]
+    ref_f = np.empty(n)
+    to_family(arm, zero, ref, ref_f)
+    goal = np.empty(3)
+    goal[0], goal[1], goal[2] = target[0] - arm.base[0], target[1] - arm.base[1], target[2]
+    theta = np.empty(n)
+    if w2 == 0.0:
+        err = closest_box(f, goal, ref_f, theta, True)
+        if err >= 0.0:
+            from_family(arm, zero, theta, q_out)
+            return err, 0.0, 0
+    goal_pitch = pitch - offset
     order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
     dist = np.full(n_atlas, np.inf)
     for i in range(atlas_p.shape[0]):
@@ -789,20 +738,29 @@ def closest_family(
             dist[k] = d
             order[k] = i
     # the starts' costs; a few steps from the promising ones; the best one to convergence
+    family = np.zeros(n, dtype=np.bool_)
+    for k in range(4):
+        if f.J[k] >= 0:
+            family[f.J[k]] = True
     starts = np.empty((n_atlas + 1, n))
     costs = np.full(n_atlas + 1, np.inf)
     p = np.empty(3)
     for s in range(n_atlas + 1):
         if s == 0:
             for i in range(n):
-                starts[s, i] = min(max(ref[i], lower[i]), upper[i])
-            if not limits_ok(starts[s], lower, upper, C, clo, chi, 0.0):
+                starts[s, i] = min(max(ref_f[i], f.lower[i]), f.upper[i])
+            if not limits_ok(starts[s], f, 0.0):
                 continue
         elif order[s - 1] >= 0:
-            starts[s] = atlas_q[order[s - 1]]
+            to_family(arm, zero, atlas_q[order[s - 1]], starts[s])
+            for i in range(n):
+                if not family[i]:
+                    starts[s, i] = ref_f[i]
+            if not limits_ok(starts[s], f, 0.0):
+                continue
         else:
             continue
-        costs[s], _ = _cost(P, J, starts[s], target, pitch, w2, p)
+        costs[s], _ = _cost(f, starts[s], goal, goal_pitch, w2, p)
     floor = np.min(costs)
     best = 1e300
     iters = 0
@@ -811,11 +769,12 @@ def closest_family(
         if not costs[s] <= 4.0 * floor + 1e-6:  # far worse than the best start: skip it
             continue
         q[:] = starts[s]
-        err, perr, it = refine_family(P, J, lower, upper, C, clo, chi, target, pitch, w2, q, 4, 0.4, 1e-12)
+        err, perr, it = refine_family(f, goal, goal_pitch, w2, q, 4, 0.4, 1e-12)
         iters += it
         score = err * err + w2 * perr * perr
         if score < best - 1e-18:
             best = score
-            q_out[:] = q
-    err, perr, it = refine_family(P, J, lower, upper, C, clo, chi, target, pitch, w2, q_out, 200, 0.4, 1e-12)
+            theta[:] = q
+    err, perr, it = refine_family(f, goal, goal_pitch, w2, theta, 200, 0.4, 1e-12)
+    from_family(arm, zero, theta, q_out)
     return err, perr, iters + it

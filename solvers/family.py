@@ -1,6 +1,7 @@
 """The closed form's branches that respect every joint limit, nearest the seed first.
 
-Compiled with Numba, like :mod:`solvers.geometric`, which it builds on.
+Compiled with Numba, like :mod:`solvers.geometric`, which it builds on. Joint angles are the
+family's (:mod:`solvers.arrays`).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
 
+from .arrays import Family
 from .geometric import branches, family_fk, wrap_into
 from .jit import jit
 from .limits import limits_ok
@@ -19,13 +21,7 @@ IntArray = NDArray[np.int64]
 
 @jit
 def configs_at(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
+    f: Family,
     ref: FloatArray,
     x: float,
     y: float,
@@ -42,7 +38,8 @@ def configs_at(
     full joint vectors into ``qs`` (4, n) and branch ids into ``ids``; returns the count.
     ``tol`` [rad] of box slack is clamped away (used at boundary pitches).
     """
-    count = branches(P, J[3] >= 0, x, y, z, phi, work)
+    J = f.J
+    count = branches(f.P, J[3] >= 0, x, y, z, phi, work)
     m = 0
     wrap_tol = tol if tol > 0.0 else 1e-12
     for r in range(count):
@@ -53,12 +50,12 @@ def configs_at(
             j = J[c]
             if j < 0:
                 continue
-            found, v = wrap_into(work[r, c + 1], lower[j], upper[j], ref[j], wrap_tol)
+            found, v = wrap_into(work[r, c + 1], f.lower[j], f.upper[j], ref[j], wrap_tol)
             if not found:
                 ok = False
                 break
             qs[m, j] = v
-        if ok and limits_ok(qs[m], lower, upper, C, clo, chi, 0.0):
+        if ok and limits_ok(qs[m], f, 0.0):
             ids[m] = int(work[r, 0])
             m += 1
     return m
@@ -86,11 +83,9 @@ def rank_by_distance(qs: FloatArray, ids: IntArray, m: int, ref: FloatArray, wei
 
 
 @jit
-def formula_errors(
-    P: FloatArray, J: IntArray, qs: FloatArray, m: int, x: float, y: float, z: float, errs: FloatArray
-) -> None:
+def formula_errors(f: Family, qs: FloatArray, m: int, x: float, y: float, z: float, errs: FloatArray) -> None:
     """Distance [m] from each row's tool point (family formula) to the target."""
     p = np.empty(3)
     for r in range(m):
-        family_fk(P, J, qs[r], p)
+        family_fk(f, qs[r], p)
         errs[r] = ((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2) ** 0.5

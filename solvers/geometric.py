@@ -15,16 +15,14 @@ back over the top (``flipped``), times elbow ``up``/``down``. It generalises the
 
 The functions are compiled with Numba (plain floats and small arrays, no Python objects),
 so one closed-form solve costs about a microsecond, and the same code serves the single
-and the batch IK. Parameters travel as arrays: ``P = [px, py, pz, l1, l2, l3, ox, oz]``
-and ``J = [yaw, shoulder, elbow, wrist]`` joint indices (``wrist = -1``: none).
+and the batch IK. Parameters travel as a :class:`~armd.solvers.arrays.Family` (``P = [px, py,
+pz, l1, l2, l3, ox, oz]``, ``J = [yaw, shoulder, elbow, wrist]`` joint indices, ``wrist = -1``:
+none), joint angles in the family's (:mod:`armd.solvers.arrays` maps them to the URDF's).
 """
 
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -32,10 +30,8 @@ from numpy.typing import NDArray
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
+from .arrays import Arm, Family, family_pitch, to_family, view
 from .jit import entry, jit
-
-if TYPE_CHECKING:  # (not at run time: the native build imports this file without Pinocchio)
-    from armd.robots import Robot
 
 IntArray = NDArray[np.int64]
 
@@ -44,36 +40,6 @@ REACH_EPS = 1e-12  # slack on |cos(elbow)| <= 1 for targets exactly on the works
 
 BRANCH_NAMES = ("front/elbow_up", "front/elbow_down", "flipped/elbow_up", "flipped/elbow_down")
 _FRONT, _FLIPPED = 0, 2  # branch id = side + (0 up | 1 down)
-
-
-@dataclass(frozen=True)
-class FamilyParams:
-    """The family's numbers as the arrays the compiled functions take (read once per robot)."""
-
-    P: FloatArray  # px, py, pz, l1, l2, l3, ox, oz [m]
-    J: IntArray  # yaw, shoulder, elbow, wrist joint indices; wrist -1 when there is none
-    n: int
-
-    @property
-    def has_wrist(self) -> bool:
-        return bool(self.J[3] >= 0)
-
-    @functools.cached_property
-    def pitch_joints(self) -> tuple[int, ...]:
-        """Indices of the pitch joints (shoulder, elbow, wrist): their sum is the tool pitch."""
-        return tuple(int(j) for j in self.J[1:] if j >= 0)
-
-    @classmethod
-    def of(cls, robot: Robot) -> FamilyParams:
-        g = robot.geometry
-        if g is None:
-            raise ValueError(f"{robot.name} has no [geometry]: it is not of the closed-form family")
-        hand = g.hand if g.wrist is not None else 0.0
-        P = np.array(
-            [g.pivot[0], g.pivot[1], g.pivot[2], g.upper_arm, g.forearm, hand, g.tool_offset[0], g.tool_offset[1]]
-        )
-        J = np.array([g.yaw, g.shoulder, g.elbow, -1 if g.wrist is None else g.wrist], dtype=np.int64)
-        return cls(P, J, robot.nq)
 
 
 wrap_angle = entry("f8(f8)")(wrap)  # (armd.robots.angles' wrap, compiled: [-pi, pi))
@@ -181,19 +147,34 @@ def branches(P: FloatArray, has_wrist: bool, x: float, y: float, z: float, phi: 
     return count
 
 
-@entry("void(f8[:], i8[:], f8[:], f8[:])")
-def family_fk(P: FloatArray, J: IntArray, q: FloatArray, out: FloatArray) -> None:
-    """Tool point [m] by the family's formula (:mod:`robots.geometry`) into ``out`` (3,)."""
+@jit
+def family_fk(f: Family, theta: FloatArray, out: FloatArray) -> None:
+    """Tool point [m] by the family's formula (:mod:`robots.geometry`) at ``theta`` (the family's
+    angles) into ``out`` (3,), in the family's frame (the yaw axis at the origin)."""
+    P, J = f.P, f.J
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
-    p1 = q[J[1]]
-    p2 = p1 + q[J[2]]
+    p1 = theta[J[1]]
+    p2 = p1 + theta[J[2]]
     u = px + l1 * math.cos(p1) + l2 * math.cos(p2) + ox
     zz = pz + l1 * math.sin(p1) + l2 * math.sin(p2) + oz
     if J[3] >= 0:
-        p3 = p2 + q[J[3]]
+        p3 = p2 + theta[J[3]]
         u += l3 * math.cos(p3)
         zz += l3 * math.sin(p3)
-    c, s = math.cos(q[J[0]]), math.sin(q[J[0]])
+    c, s = math.cos(theta[J[0]]), math.sin(theta[J[0]])
     out[0] = c * u - s * py
     out[1] = s * u + c * py
     out[2] = zz
+
+
+@entry("f8(Arm, f8[:], f8[:])")
+def arm_pose(arm: Arm, q: FloatArray, out: FloatArray) -> float:
+    """Tool point [m] in ``base`` into ``out`` (3,) and tool pitch [rad] (not wrapped) at ``q``
+    (the URDF's angles), by the family's formula and the arm's map."""
+    f, zero, offset = view(arm, q)
+    theta = np.empty(q.shape[0])
+    to_family(arm, zero, q, theta)
+    family_fk(f, theta, out)
+    out[0] += arm.base[0]
+    out[1] += arm.base[1]
+    return 0.0 if f.level else family_pitch(f, theta) + offset

@@ -27,27 +27,21 @@ point and the remaining error. An arm outside the family gets the QP from severa
 from __future__ import annotations
 
 import math
-import threading
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
 from armd.errors import BadRequest
 from armd.robots import Robot
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
-from .analytic import EXACT, NONE, pack, packed_outputs, solve_packed
+from .analytic import EXACT, NONE, solve_point
+from .arm import ArmState, arm_state
 from .closest import closest_family
-from .geometric import BRANCH_NAMES, TWO_PI, FamilyParams, branches, family_fk
-from .qp import QPRefiner
+from .geometric import BRANCH_NAMES, TWO_PI, arm_pose, branches
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
-
-IntArray = NDArray[np.int64]
-_Head = tuple[FloatArray, IntArray]  # solve_packed's per-arm arguments (solvers.analytic.pack)
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
@@ -55,102 +49,6 @@ PITCH_TOLERANCE = 1e-9  # [rad]
 FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference, in order
 _ATLAS_STARTS = 3
 _PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
-
-
-class _Buffers(threading.local):
-    """Scratch arrays for the compiled stage, one set per thread."""
-
-    def __init__(self, n: int) -> None:
-        self.out, self.qs, self.errs, self.reached = packed_outputs(n)  # one buffer and its views
-        self.ids = np.empty(4, dtype=np.int64)
-        self.work = np.empty((4, 5))
-        self.tail = (self.out, self.ids, self.work)  # solve_packed's outputs
-
-
-@dataclass
-class _Arm:
-    """Per-robot solver state, built once: the family's arrays, limits, the QP, QP starts."""
-
-    robot: Robot
-    fp: FamilyParams | None
-    qp: QPRefiner
-    lower: FloatArray
-    upper: FloatArray
-    weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
-    C: FloatArray  # coupled limits clo <= C q <= chi
-    clo: FloatArray
-    chi: FloatArray
-    exact: bool  # [geometry] reproduces the URDF's FK to 1e-12 m: branch errors by formula
-    exact_pitch_search: bool  # no coupled limit touches a pitch joint: boundary pitches are exact
-    level: bool  # the tool pitch is held level by a linkage: always 0
-    atlas_q: FloatArray  # in-limit configurations spread over joint space (closest-point starts) [rad]
-    atlas_p: FloatArray  # their tool points [m]
-    buffers: _Buffers
-    head: _Head | None = None  # solve_packed's per-arm arguments (made once)
-
-    def __post_init__(self) -> None:
-        if self.fp is not None:
-            self.head = pack(
-                self.fp.P,
-                self.fp.J,
-                self.lower,
-                self.upper,
-                self.weights,
-                self.C,
-                self.clo,
-                self.chi,
-                self.exact_pitch_search,
-                self.level,
-            )
-
-
-_cache: dict[int, _Arm] = {}
-_cache_lock = threading.Lock()
-
-
-def _atlas(robot: Robot, n: int = 4096) -> FloatArray:
-    """Fixed quasi-random configurations within every limit: starts for the closest-point QP."""
-    rng = np.random.default_rng(20261121)
-    qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(4 * n, robot.nq))
-    return qs[robot.limits.contains_batch(qs, tol=0.0)][:n]
-
-
-def _arm(robot: Robot) -> _Arm:
-    arm = _cache.get(id(robot))
-    if arm is not None and arm.robot is robot:
-        return arm
-    with _cache_lock:
-        lim = robot.limits
-        fp = FamilyParams.of(robot) if robot.geometry is not None else None
-        C = np.array([c.coefficients for c in lim.coupled]).reshape(len(lim.coupled), robot.nq)
-        exact = False
-        pitch_free = True
-        if robot.geometry is not None and fp is not None:
-            rng = np.random.default_rng(0)
-            qs = rng.uniform(lim.lower, lim.upper, size=(64, robot.nq))
-            exact = max(float(np.max(np.abs(robot.geometry.fk(q) - robot.fk(q)))) for q in qs) < 1e-12
-            pitch_joints = [int(j) for j in fp.J[1:] if j >= 0]
-            pitch_free = not np.any(C[:, pitch_joints]) if len(C) else True
-        atlas_q = _atlas(robot)
-        arm = _Arm(
-            robot,
-            fp,
-            QPRefiner(robot),
-            lim.lower.copy(),
-            lim.upper.copy(),
-            1.0 / lim.velocity,
-            C,
-            np.array([c.lower for c in lim.coupled]),
-            np.array([c.upper for c in lim.coupled]),
-            exact,
-            pitch_free,
-            robot.geometry is not None and robot.geometry.level,
-            atlas_q,
-            np.array([robot.fk(q) for q in atlas_q]),
-            _Buffers(robot.nq),
-        )
-        _cache[id(robot)] = arm
-    return arm
 
 
 def solve_ik(
@@ -177,7 +75,7 @@ def solve_ik(
     Raises:
         BadRequest: malformed target, approach, seed or tolerance (nothing is solved).
     """
-    arm = _arm(robot)
+    arm = arm_state(robot)
     ref = robot.neutral if seed is None else robot.joint_vector(seed, "seed")
     point = target_point(robot, target, ref)
     pitch = approach_pitch(robot, approach)
@@ -187,7 +85,7 @@ def solve_ik(
         isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
     ):
         raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
-    if arm.fp is None:
+    if arm.arrays is None:
         result = _solve_numerical(arm, point, ref, tolerance)
     else:
         result = _solve_family(arm, point, pitch, ref, tolerance)
@@ -204,24 +102,19 @@ def _dist(a: FloatArray, b: FloatArray) -> float:
     return math.dist(a.tolist(), b.tolist())
 
 
-def _pose(arm: _Arm, q: FloatArray) -> tuple[FloatArray, float]:
+def _pose(arm: ArmState, q: FloatArray) -> tuple[FloatArray, float]:
     """Tool point [m] and pitch [rad] at ``q`` on the exact model: the family's formula where
     it is the URDF's FK (checked against Pinocchio when the arm was first seen), else Pinocchio."""
-    fp = arm.fp
-    if fp is None or not arm.exact:
+    if arm.arrays is None or not arm.exact:
         pose = arm.robot.pose(q)
         return pose.position, pose.pitch
     reached = np.empty(3)
-    family_fk(fp.P, fp.J, q, reached)
-    g = arm.robot.geometry
-    assert g is not None
-    ql = q.tolist()
-    pitch = 0.0 if g.level else wrap(sum(map(ql.__getitem__, fp.pitch_joints)))
-    return reached, pitch
+    pitch = arm_pose(arm.arrays, q, reached)
+    return reached, wrap(pitch)
 
 
 def _result(
-    arm: _Arm,
+    arm: ArmState,
     status: str,
     chosen: Branch,
     others: list[Branch],
@@ -249,7 +142,7 @@ def _result(
 
 
 def _refined(
-    arm: _Arm, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None, tolerance: float
+    arm: ArmState, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None, tolerance: float
 ) -> tuple[list[Branch], int]:
     """Branches of an idealised ``[geometry]`` checked on the exact model and refined by the QP
     (inside the limits) where they miss; those the QP cannot bring in are dropped."""
@@ -267,15 +160,11 @@ def _refined(
     return found, iterations
 
 
-def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float) -> IKResult:
-    fp = arm.fp
-    assert fp is not None
+def _solve_family(arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float) -> IKResult:
+    assert arm.arrays is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
-    assert arm.head is not None
-    K, JI = arm.head
-    out, ids, work = b.tail
-    code, m, phi, pitch_sum = solve_packed(K, JI, ref, point, prefs, out, ids, work)
+    code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0)
     if code == EXACT or pitch is None:
@@ -310,26 +199,28 @@ def _solve_family(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatA
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and refined by the QP where it misses
     rows = [(names[r], qs[r], errs[r]) for r in range(m)]
-    found, iterations = _refined(arm, rows, point, phi if fp.has_wrist else None, tolerance)
+    has_wrist = arm.robot.geometry is not None and arm.robot.geometry.has_wrist
+    found, iterations = _refined(arm, rows, point, phi if has_wrist else None, tolerance)
     if not found:
         return _closest(arm, point, pitch, ref, tolerance, iterations)
     return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
 
 
-def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray) -> FloatArray | None:
+def _stretched_start(arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray) -> FloatArray | None:
     """The arm pointed at ``point``, with the target pulled into its reach: a closest-point QP start.
 
     Without limits this is the closest configuration: a target beyond reach is best met by
     the arm stretched toward it (with a free wrist, the hand continuing the same line).
     """
-    fp = arm.fp
-    assert fp is not None
-    px, py, pz, l1, l2, l3, ox, oz = fp.P.tolist()
+    assert arm.arrays is not None
+    f = arm.arrays.family
+    has_wrist = bool(f.J[3] >= 0)
+    px, py, pz, l1, l2, l3, ox, oz = f.P.tolist()
     x, y, z = point.tolist()
     h = math.sqrt(max(x * x + y * y - py * py, 0.0))
     a, b = h - px - ox, z - pz - oz  # the target in the arm's plane, from the shoulder
     lo = abs(l1 - l2) * 1.000001 + 1e-9
-    if fp.has_wrist and pitch is not None:  # the wrist must sit one hand back from the target
+    if has_wrist and pitch is not None:  # the wrist must sit one hand back from the target
         wa, wb = a - l3 * math.cos(pitch), b - l3 * math.sin(pitch)
         d = math.hypot(wa, wb)
         k = min(max(d, lo), (l1 + l2) * 0.999999) / max(d, 1e-300)
@@ -338,21 +229,22 @@ def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: Flo
     else:
         d = math.hypot(a, b)
         phi = math.atan2(b, a)
-        reach = l1 + l2 + (l3 if fp.has_wrist else 0.0)
-        k = min(max(d, lo + (l3 if fp.has_wrist else 0.0)), reach * 0.999999) / max(d, 1e-300)
+        reach = l1 + l2 + (l3 if has_wrist else 0.0)
+        k = min(max(d, lo + (l3 if has_wrist else 0.0)), reach * 0.999999) / max(d, 1e-300)
         a, b = a * k, b * k
     u = a + px + ox
     yaw = math.atan2(y, x) - math.atan2(py, u)
     c, s = math.cos(yaw), math.sin(yaw)
     work = np.empty((4, 5))
-    count = branches(fp.P, fp.has_wrist, c * u - s * py, s * u + c * py, b + pz + oz, phi, work)
+    count = branches(f.P, has_wrist, c * u - s * py, s * u + c * py, b + pz + oz, phi, work)
+    sign, zero = arm.arrays.sign, arm.arrays.zero
     best: tuple[float, FloatArray] | None = None
     for r in range(count):
         q = ref.copy()
         for col in range(4):
-            j = int(fp.J[col])
+            j = int(f.J[col])
             if j >= 0:
-                v = float(work[r, col + 1])
+                v = sign[j] * (float(work[r, col + 1]) - zero[j])  # (the family's angle in the URDF's)
                 q[j] = v - TWO_PI * round((v - ref[j]) / TWO_PI)
         q = arm.qp.project(q)
         dist = _dist(arm.robot.fk(q), point)
@@ -362,35 +254,19 @@ def _stretched_start(arm: _Arm, point: FloatArray, pitch: float | None, ref: Flo
 
 
 def _closest(
-    arm: _Arm, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, iterations: int
+    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, iterations: int
 ) -> IKResult:
     """The configuration within limits whose tool point is nearest ``point``."""
-    if arm.fp is not None and arm.exact:  # the family formula is the exact model: compiled
-        fp = arm.fp
-        q = np.empty(fp.n)
-        w2 = _PITCH_WEIGHT**2 if (pitch is not None and fp.has_wrist) else 0.0
+    if arm.arrays is not None and arm.exact:  # the family formula is the exact model: compiled
+        q = np.empty(arm.robot.nq)
+        has_wrist = bool(arm.arrays.family.J[3] >= 0)
+        w2 = _PITCH_WEIGHT**2 if (pitch is not None and has_wrist) else 0.0
         err, perr, its = closest_family(
-            fp.P,
-            fp.J,
-            arm.lower,
-            arm.upper,
-            arm.C,
-            arm.clo,
-            arm.chi,
-            arm.weights,
-            arm.exact_pitch_search,
-            point,
-            0.0 if pitch is None else pitch,
-            w2,
-            ref,
-            arm.atlas_q,
-            arm.atlas_p,
-            _ATLAS_STARTS,
-            q,
+            arm.arrays, point, 0.0 if pitch is None else pitch, w2, ref, arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q
         )
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     starts = []
-    if arm.fp is not None:
+    if arm.arrays is not None:
         s = _stretched_start(arm, point, pitch, ref)
         if s is not None:
             starts.append(s)
@@ -411,7 +287,7 @@ def _closest(
 
 
 def _closest_result(
-    arm: _Arm,
+    arm: ArmState,
     point: FloatArray,
     pitch: float | None,
     chosen: Branch,
@@ -442,7 +318,7 @@ def _closest_result(
 # -- arms outside the family -------------------------------------------------------------
 
 
-def _solve_numerical(arm: _Arm, point: FloatArray, ref: FloatArray, tolerance: float) -> IKResult:
+def _solve_numerical(arm: ArmState, point: FloatArray, ref: FloatArray, tolerance: float) -> IKResult:
     """QP from the seed, the neutral pose and fixed quasi-random starts; the best wins."""
     robot = arm.robot
     rng = np.random.default_rng(12345)
@@ -470,7 +346,7 @@ def _solve_numerical(arm: _Arm, point: FloatArray, ref: FloatArray, tolerance: f
 # -- whole actuator steps ----------------------------------------------------------------------
 
 
-def _quantise(arm: _Arm, result: IKResult, tolerance: float) -> IKResult:
+def _quantise(arm: ArmState, result: IKResult, tolerance: float) -> IKResult:
     """The answer moved to whole actuator commands: the best of the neighbouring step counts."""
     robot = arm.robot
     amap = robot.actuators

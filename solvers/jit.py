@@ -41,6 +41,7 @@ HERE = Path(__file__).resolve().parent
 # for the native module, this one for the JIT), what a build or a cache is of
 COMPILED_MODULES = (
     "activeset",
+    "arrays",
     "analytic",
     "closest",
     "family",
@@ -174,6 +175,7 @@ else:
     _GIVEN: dict[str, Callable[..., Any]] = {}  # ... and what @entry gave its module for it
     _MODULES = (
         "armd.solvers.activeset",
+        "armd.solvers.arrays",
         "armd.solvers.analytic",
         "armd.solvers.closest",
         "armd.solvers.family",
@@ -236,14 +238,25 @@ else:
 # the signature says is read as if it were right (garbage, or a crash). Every caller is armd's
 # own and passes arrays it made; ARMD_NATIVE_CHECK=1 (the test suite sets it) checks every call
 # against the signature, so that a caller that would not is caught by the tests. (Strides are
-# read from the array: any layout is fine, except where a signature says ``::1``.)
+# read from the array: any layout is fine, except where a signature says ``::1``; the arrays of
+# an arm's named tuples, solvers.arrays, must be C-contiguous.)
 CHECK = os.environ.get("ARMD_NATIVE_CHECK") == "1"
 _DTYPES = {"f8": "float64", "i8": "int64", "b1": "bool"}
+# the named tuples a signature may name (solvers.arrays registers its own): name -> (class, fields)
+TUPLES: dict[str, tuple[type, tuple[tuple[str, Any], ...]]] = {}
+
+
+def register_tuples(classes: dict[str, type], fields: dict[str, tuple[tuple[str, Any], ...]]) -> None:
+    """Named tuples that signatures name, with each field's (dtype, number of dimensions) or
+    the name of a nested tuple: what the tests' check of native calls holds them to."""
+    for name, cls in classes.items():
+        TUPLES[name] = (cls, fields[name])
 
 
 def parse_signature(signature: str) -> list[tuple[str, int, bool]]:
     """The arguments of a signature in Numba's notation (``void(f8[:], i8, f8[:, ::1])``), each
-    as (dtype name, number of dimensions (0 for a scalar), whether it must be C-contiguous)."""
+    as (dtype name, number of dimensions (0 for a scalar), whether it must be C-contiguous); a
+    named tuple of :mod:`solvers.arrays` as (its name, 0, True)."""
     inner = signature[signature.rindex("(") + 1 : -1]  # (the last parenthesis opens the arguments)
     args, depth, cur = [], 0, ""
     for ch in inner:
@@ -257,9 +270,38 @@ def parse_signature(signature: str) -> list[tuple[str, int, bool]]:
         args.append(cur.strip())
     out = []
     for arg in args:
+        if arg in TUPLES:
+            out.append((arg, 0, True))
+            continue
         name, _, dims = arg.partition("[")
         out.append((_DTYPES[name], dims.count(",") + 1 if dims else 0, "::1" in dims))
     return out
+
+
+def _tuple_problem(value: Any, name: str) -> str | None:
+    """What is wrong with ``value`` as the named tuple ``name`` of :mod:`solvers.arrays`, or None."""
+    import numpy as np
+
+    cls, fields = TUPLES[name]
+    if type(value) is not cls:
+        return f"a {type(value).__name__}, not a {name}"
+    for field, spec in fields:
+        item = getattr(value, field)
+        if isinstance(spec, str):
+            inner = _tuple_problem(item, spec)
+            if inner is not None:
+                return f"{field}: {inner}"
+            continue
+        dtype, ndim = _DTYPES[spec[0]], spec[1]
+        if ndim:
+            if not (
+                isinstance(item, np.ndarray) and item.dtype == dtype and item.ndim == ndim and item.flags.c_contiguous
+            ):
+                got = f"{item.dtype}[{item.ndim}d]" if isinstance(item, np.ndarray) else type(item).__name__
+                return f"{field} is {got}, not a C-contiguous {dtype}[{ndim}d]"
+        elif not isinstance(item, {"float64": float, "int64": int, "bool": bool}[dtype]):
+            return f"{field} is a {type(item).__name__}, not a {dtype}"
+    return None
 
 
 def _checked(native: Callable[..., Any], signature: str) -> Callable[..., Any]:
@@ -273,6 +315,11 @@ def _checked(native: Callable[..., Any], signature: str) -> Callable[..., Any]:
         if len(args) != len(spec):
             raise TypeError(f"{native.__name__}: {len(args)} arguments for {signature}")
         for i, (arg, (dtype, ndim, contiguous)) in enumerate(zip(args, spec, strict=True)):
+            if dtype in TUPLES:
+                problem = _tuple_problem(arg, dtype)
+                if problem is not None:
+                    raise TypeError(f"{native.__name__}: argument {i} ({dtype}): {problem}")
+                continue
             if ndim:
                 ok = (
                     isinstance(arg, np.ndarray)

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from armd.robots.types import FloatArray
 
+from .arrays import Family
 from .jit import jit
 
 
 @jit
-def limits_ok(
-    q: FloatArray, lower: FloatArray, upper: FloatArray, C: FloatArray, clo: FloatArray, chi: FloatArray, tol: float
-) -> bool:
-    """Box limits hold to ``tol`` [rad] and every coupled limit holds exactly."""
+def limits_ok(q: FloatArray, f: Family, tol: float) -> bool:
+    """Box limits hold to ``tol`` [rad] and every coupled limit holds exactly (``f``'s limits)."""
+    lower, upper, C, clo, chi = f.lower, f.upper, f.C, f.clo, f.chi
     for i in range(q.shape[0]):
         if q[i] < lower[i] - tol or q[i] > upper[i] + tol:
             return False

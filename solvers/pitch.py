@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
 
+from .arrays import Family
 from .family import configs_at
 from .geometric import TWO_PI, two_link, wrap_angle, wrap_into
 from .jit import jit
@@ -45,22 +46,10 @@ def _pref_key(phi: float, prefs: FloatArray) -> float:
 
 
 @jit
-def boundary_pitch(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
-    ref: FloatArray,
-    x: float,
-    y: float,
-    z: float,
-    prefs: FloatArray,
-) -> tuple[bool, float]:
+def boundary_pitch(f: Family, ref: FloatArray, x: float, y: float, z: float, prefs: FloatArray) -> tuple[bool, float]:
     """The reachable pitch [rad] nearest the preferred ones, among the boundary pitches."""
-    ys, sh, el, wr = J[0], J[1], J[2], J[3]
+    P, lower, upper = f.P, f.lower, f.upper
+    ys, sh, el, wr = f.J[0], f.J[1], f.J[2], f.J[3]
     px, py, pz, l1, l2, l3, ox, oz = P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7]
     h2 = x * x + y * y - py * py
     if h2 < -1e-12:
@@ -114,7 +103,7 @@ def boundary_pitch(
             if not (ok1 and ok2 and ok3):
                 continue
             q[ys], q[sh], q[el], q[wr] = yaw, w1, w2, w3
-            if not limits_ok(q, lower, upper, C, clo, chi, 0.0):
+            if not limits_ok(q, f, 0.0):
                 continue
             phi = wrap_angle(w1 + w2 + w3)
             key = _pref_key(phi, prefs)
@@ -124,20 +113,7 @@ def boundary_pitch(
 
 
 @jit
-def grid_pitch(
-    P: FloatArray,
-    J: IntArray,
-    lower: FloatArray,
-    upper: FloatArray,
-    C: FloatArray,
-    clo: FloatArray,
-    chi: FloatArray,
-    ref: FloatArray,
-    x: float,
-    y: float,
-    z: float,
-    prefs: FloatArray,
-) -> tuple[bool, float]:
+def grid_pitch(f: Family, ref: FloatArray, x: float, y: float, z: float, prefs: FloatArray) -> tuple[bool, float]:
     """The reachable pitch [rad] nearest the preferred ones: 1-degree grid, then bisection."""
     n = ref.shape[0]
     qs = np.empty((4, n))
@@ -148,7 +124,7 @@ def grid_pitch(
     best_key = 1e300
     for i in range(361):
         phi = -math.pi + i * (TWO_PI / 360.0)
-        if configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, phi, 0.0, qs, ids, work) > 0:
+        if configs_at(f, ref, x, y, z, phi, 0.0, qs, ids, work) > 0:
             key = _pref_key(phi, prefs)
             if key < best_key:
                 best_key, good, found = key, phi, True
@@ -163,7 +139,7 @@ def grid_pitch(
     lo, hi = 0.0, 1.0
     for _ in range(30):
         mid = 0.5 * (lo + hi)
-        if configs_at(P, J, lower, upper, C, clo, chi, ref, x, y, z, good + mid * delta, 0.0, qs, ids, work) > 0:
+        if configs_at(f, ref, x, y, z, good + mid * delta, 0.0, qs, ids, work) > 0:
             lo = mid
         else:
             hi = mid

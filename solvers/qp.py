@@ -63,11 +63,7 @@ class QPRefiner:
         self.c_hi = np.array([c.upper - _MARGIN for c in coupled])
         self.sense = np.zeros(self.n + len(coupled), dtype=np.int32)
         g = robot.geometry
-        self.pitch_row: FloatArray | None = None
-        if g is not None and g.wrist is not None:
-            row = np.zeros(self.n)
-            row[[g.shoulder, g.elbow, g.wrist]] = 1.0
-            self.pitch_row = row
+        self.has_pitch = g is not None and g.wrist is not None  # a wrist pitch joint: the pitch is a task
 
     def project(self, q: FloatArray) -> FloatArray:
         """The point of the limit set (box and coupled) nearest ``q`` [rad]."""
@@ -93,21 +89,43 @@ class QPRefiner:
 
     def _evaluate(
         self, q: FloatArray, target: FloatArray, pitch: float | None, w2: float, jacobian: bool
-    ) -> tuple[float, FloatArray, float, FloatArray | None]:
-        """(cost, position error vector [m], pitch error [rad], Jacobian or None) at ``q``."""
+    ) -> tuple[float, FloatArray, float, FloatArray | None, FloatArray | None]:
+        """(cost, position error vector [m], pitch error [rad], position Jacobian and pitch
+        gradient (or None)) at ``q``."""
         data = self.robot.data()
         if jacobian:
             pin.computeJointJacobians(self.model, data, q)
         else:
             pin.forwardKinematics(self.model, data, q)
-        p = pin.updateFramePlacement(self.model, data, self.fid).translation
-        e = target - p
+        placement = pin.updateFramePlacement(self.model, data, self.fid)
+        e = target - placement.translation
         perr = 0.0
-        if pitch is not None and self.pitch_row is not None:
-            perr = wrap(pitch - float(self.pitch_row @ q))
+        if pitch is not None and self.has_pitch:
+            perr = wrap(pitch - self.robot._pitch(q, placement.rotation))
         cost = float(e @ e) + w2 * perr * perr
-        J = pin.getFrameJacobian(self.model, data, self.fid, _LOCAL)[:3] if jacobian else None
-        return cost, e, perr, J
+        if not jacobian:
+            return cost, e, perr, None, None
+        J = pin.getFrameJacobian(self.model, data, self.fid, _LOCAL)
+        row = self._pitch_gradient(q, np.asarray(placement.rotation), J[3:]) if self.has_pitch else None
+        return cost, e, perr, np.array(J[:3]), row
+
+    def _pitch_gradient(self, q: FloatArray, rotation: FloatArray, angular: FloatArray) -> FloatArray:
+        """d(tool pitch)/dq [rad/rad] (:meth:`Robot.tool_pitch`), from the frame's angular Jacobian:
+        the tool axis d turns at w_j x d per joint, and the arm's heading with the yaw."""
+        d = rotation @ self.robot.tool_axis
+        dd = np.cross(angular.T, d).T  # (3, n): d(d)/dq
+        g = self.robot.geometry
+        if g is not None:
+            heading = g.heading(q)
+            f = np.array([math.cos(heading), math.sin(heading), 0.0])
+            a = float(d @ f)
+            da = f @ dd
+            da[g.yaw] += g.sign[0] * float(d @ np.array([-f[1], f[0], 0.0]))
+        else:
+            a = math.hypot(d[0], d[1])
+            da = (d[0] * dd[0] + d[1] * dd[1]) / max(a, 1e-300)
+        b = float(d[2])
+        return np.asarray((a * dd[2] - b * da) / max(a * a + b * b, 1e-300))
 
     def solve(
         self,
@@ -128,10 +146,10 @@ class QPRefiner:
         when no step lowers the cost any more (a constrained optimum).
         """
         q = self.project(np.asarray(q0, dtype=float))
-        use_pitch = pitch is not None and self.pitch_row is not None
+        use_pitch = pitch is not None and self.has_pitch
         w2 = pitch_weight * pitch_weight if use_pitch else 0.0
         ptarget = pitch if use_pitch else None
-        cost, e, perr, J = self._evaluate(q, target, ptarget, w2, True)
+        cost, e, perr, J, row = self._evaluate(q, target, ptarget, w2, True)
         mu = 1e-6
         it = 0
         for it in range(1, max_iter + 1):
@@ -142,16 +160,16 @@ class QPRefiner:
             H = J.T @ J
             g = J.T @ e
             if use_pitch:
-                assert self.pitch_row is not None
-                H = H + w2 * np.outer(self.pitch_row, self.pitch_row)
-                g = g + w2 * perr * self.pitch_row
+                assert row is not None
+                H = H + w2 * np.outer(row, row)
+                g = g + w2 * perr * row
             accepted = False
             for _ in range(12):
                 Hd = H.copy()
                 Hd[np.diag_indices_from(Hd)] += mu
                 dq = self._qp(Hd, -g, q, self.step)
                 q_new = self.robot.limits.clip(q + dq)
-                cost_new, e_new, perr_new, _ = self._evaluate(q_new, target, ptarget, w2, False)
+                cost_new, e_new, perr_new, _, _ = self._evaluate(q_new, target, ptarget, w2, False)
                 if cost_new < cost:
                     accepted = True
                     break
@@ -164,5 +182,5 @@ class QPRefiner:
             mu = max(mu / 10.0, 1e-12)
             if progress <= 1e-12 * max(cost, 1e-300) or float(np.max(np.abs(dq))) < 1e-13:
                 break
-            _, e, perr, J = self._evaluate(q, target, ptarget, w2, True)
+            _, e, perr, J, row = self._evaluate(q, target, ptarget, w2, True)
         return Refined(q, math.sqrt(float(e @ e)), abs(perr), it)

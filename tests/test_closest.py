@@ -16,8 +16,9 @@ import pytest
 
 from armd import robots
 from armd.solvers import solve_ik
+from armd.solvers.arm import arm_state as _arm
+from armd.solvers.arrays import Family
 from armd.solvers.closest import closest_box, closest_family, refine_family
-from armd.solvers.ik import _arm
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -61,6 +62,33 @@ def targets() -> list[np.ndarray]:
     return out
 
 
+def _family(
+    P: np.ndarray,
+    J: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    C: np.ndarray,
+    clo: np.ndarray,
+    chi: np.ndarray,
+    exact_pitch_search: bool = False,
+) -> Family:
+    """desk4's family with these numbers (the compiled code's tuple; the family's angles are the URDF's)."""
+    c = np.ascontiguousarray
+    w = _arm(ARM).weights
+    return Family(
+        c(P),
+        c(J),
+        c(lower),
+        c(upper),
+        c(w),
+        c(C, dtype=float),
+        c(clo, dtype=float),
+        c(chi, dtype=float),
+        exact_pitch_search,
+        False,
+    )
+
+
 def _enumerated(
     P: np.ndarray,
     J: np.ndarray,
@@ -72,9 +100,8 @@ def _enumerated(
     target: np.ndarray,
     ref: np.ndarray,
 ) -> tuple[float, np.ndarray]:
-    a = _arm(ARM)
     q = np.empty(len(ref))
-    err = closest_box(P, J, lower, upper, C, clo, chi, a.weights, False, target, ref, q, True)
+    err = closest_box(_family(P, J, lower, upper, C, clo, chi), target, np.ascontiguousarray(ref), q, True)
     return err, q
 
 
@@ -91,9 +118,10 @@ def _iterated(
 ) -> float:
     """The best error of the Levenberg-Marquardt iteration from each start."""
     best = math.inf
+    f = _family(P, J, lower, upper, C, clo, chi)
     for q0 in starts:
         q = q0.copy()
-        err, _, _ = refine_family(P, J, lower, upper, C, clo, chi, target, 0.0, 0.0, q, 1000, 0.4, 1e-12)
+        err, _, _ = refine_family(f, target, 0.0, 0.0, q, 1000, 0.4, 1e-12)
         best = min(best, err)
     return best
 
@@ -156,16 +184,16 @@ def test_desk4_closest_point_is_never_worse_than_the_iteration(targets: list[np.
     """12 atlas starts per target (the 6 whose tool points are nearest it and 6 at random), each
     iterated to convergence: none ends nearer than the enumeration."""
     a = _arm(ARM)
-    fp = a.fp
+    fp = a.family
     assert fp is not None and a.exact  # the family's formula is the URDF's FK
     rng = np.random.default_rng(32)
     beaten = 0
     for t in targets:
-        err, _ = _enumerated(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, t, ARM.neutral)
+        err, _ = _enumerated(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi, t, ARM.neutral)
         assert err >= 0.0
         near = np.argsort(np.linalg.norm(a.atlas_p - t, axis=1))[:6]
         starts = a.atlas_q[np.concatenate([near, rng.choice(len(a.atlas_q), 6, replace=False)])]
-        other = _iterated(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, t, starts)
+        other = _iterated(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi, t, starts)
         assert err <= other + 1e-9, (t.tolist(), err, other)
         beaten += err < other - 1e-9
     assert beaten > 0  # the iteration stops in local minima now and then: the enumeration does not
@@ -173,11 +201,11 @@ def test_desk4_closest_point_is_never_worse_than_the_iteration(targets: list[np.
 
 def test_desk4_closest_point_is_never_worse_than_a_dense_grid(targets: list[np.ndarray]) -> None:
     a = _arm(ARM)
-    fp = a.fp
+    fp = a.family
     assert fp is not None
-    grid = Grid(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi)
+    grid = Grid(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi)
     for t in targets[:200]:
-        err, _ = _enumerated(fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, t, ARM.neutral)
+        err, _ = _enumerated(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi, t, ARM.neutral)
         assert err <= grid.error(t) + 1e-9, t.tolist()
 
 
@@ -187,10 +215,10 @@ def _variant(name: str) -> tuple[np.ndarray, ...]:
     lines inside the polygon), limits on one planar joint written as coupled rows with other
     scales and signs, a yaw that turns all the way round."""
     a = _arm(ARM)
-    fp = a.fp
+    fp = a.family
     assert fp is not None
-    P, lower, upper = fp.P.copy(), a.lower.copy(), a.upper.copy()
-    C, clo, chi = a.C.copy(), a.clo.copy(), a.chi.copy()
+    P, lower, upper = fp.P.copy(), fp.lower.copy(), fp.upper.copy()
+    C, clo, chi = fp.C.copy(), fp.clo.copy(), fp.chi.copy()
     if name == "no offset":
         P[1] = 0.0
     elif name == "large offset":
@@ -233,57 +261,24 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
     """A coupled limit touching the yaw, or mixing shoulder and elbow in another ratio (its edge
     is no circle), or a wrist arm with an offset pivot: -1, and closest_family iterates."""
     a = _arm(ARM)
-    fp = a.fp
+    fp = a.family
     assert fp is not None
     t = np.array([0.5, 0.2, 0.3])
     for C in (np.array([[0.1, 1.0, 1.0]]), np.array([[0.0, 1.0, 2.0]])):
         clo, chi = np.array([-1.2]), np.array([0.9])
-        err, _ = _enumerated(fp.P, fp.J, a.lower, a.upper, C, clo, chi, t, ARM.neutral)
+        err, _ = _enumerated(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi, t, ARM.neutral)
         assert err == -1.0
         q = np.empty(3)
-        _, _, its = closest_family(
-            fp.P,
-            fp.J,
-            a.lower,
-            a.upper,
-            C,
-            clo,
-            chi,
-            a.weights,
-            False,
-            t,
-            0.0,
-            0.0,
-            ARM.neutral,
-            a.atlas_q,
-            a.atlas_p,
-            3,
-            q,
-        )
+        assert a.arrays is not None
+        arrays = a.arrays._replace(family=_family(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi))
+        _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.atlas_q, a.atlas_p, 3, q)
         assert its > 0
-    wrist = _arm(robots.load("insomniac"))
-    assert wrist.fp is not None
-    P = wrist.fp.P.copy()
+    wrist = _arm(robots.load("insomniac")).family
+    assert wrist is not None
+    P = wrist.P.copy()
     P[1] = 0.01
     q = np.empty(len(wrist.lower))
-    assert (
-        closest_box(
-            P,
-            wrist.fp.J,
-            wrist.lower,
-            wrist.upper,
-            wrist.C,
-            wrist.clo,
-            wrist.chi,
-            wrist.weights,
-            wrist.exact_pitch_search,
-            t,
-            wrist.robot.neutral,
-            q,
-            True,
-        )
-        == -1.0
-    )
+    assert closest_box(wrist._replace(P=P), t, robots.load("insomniac").neutral, q, True) == -1.0
 
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3"])
@@ -295,7 +290,7 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
     the wrong sign, a reach too short) makes it answer worse somewhere here."""
     arm = robots.load(name)
     a = _arm(arm)
-    fp = a.fp
+    fp = a.family
     assert fp is not None
     rng = np.random.default_rng(47)
     reach = _reach(arm)
@@ -304,14 +299,10 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
         t = _candidate(KINDS[done % len(KINDS)], reach, rng)
         if solve_ik(arm, t).status != "unreachable":
             continue
-        ref = arm.neutral if done % 2 else rng.uniform(a.lower, a.upper)
+        ref = arm.neutral if done % 2 else rng.uniform(fp.lower, fp.upper)
         q_full, q_pruned = np.empty(arm.nq), np.empty(arm.nq)
-        full = closest_box(
-            fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref, q_full, False
-        )
-        pruned = closest_box(
-            fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, a.weights, a.exact_pitch_search, t, ref, q_pruned, True
-        )
+        full = closest_box(fp, t, ref, q_full, False)
+        pruned = closest_box(fp, t, ref, q_pruned, True)
         assert (full < 0) == (pruned < 0), t.tolist()
         if full >= 0:
             assert abs(pruned - full) <= 1e-12 * max(full, 1.0), (t.tolist(), full, pruned)

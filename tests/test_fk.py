@@ -80,7 +80,7 @@ def random_in_limits(arm: robots.Robot, n: int, seed: int = 1) -> np.ndarray:
 
 
 def test_catalogue_names() -> None:
-    assert robots.names() == ["desk4", "gupta3", "insomniac", "sg5ut"]
+    assert robots.names() == ["desk4", "gupta3", "insomniac", "sg5ut", "so101"]
 
 
 @pytest.mark.parametrize("name", sorted(FORMULAS))

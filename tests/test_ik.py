@@ -157,12 +157,12 @@ def test_unreachable_targets_get_the_closest_point(name: str) -> None:
 def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -> None:
     """The enumerated closest point answers every catalogue arm (desk4 too, with its offset pivot
     and coupled limit: tests/test_closest.py), and a many-start iteration finds nothing nearer."""
+    from armd.solvers.arm import arm_state
     from armd.solvers.closest import closest_box, refine_family
-    from armd.solvers.ik import _arm
 
     arm = robots.load(name)
-    a = _arm(arm)
-    fp = a.fp
+    a = arm_state(arm)
+    fp = a.family
     assert fp is not None
     rng = np.random.default_rng(23)
     used = 0
@@ -173,21 +173,7 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         if r.status != "unreachable":
             continue  # (the enumeration is asked only when no configuration reaches the target)
         q = np.empty(arm.nq)
-        err = closest_box(
-            fp.P,
-            fp.J,
-            a.lower,
-            a.upper,
-            a.C,
-            a.clo,
-            a.chi,
-            a.weights,
-            a.exact_pitch_search,
-            target,
-            arm.neutral,
-            q,
-            True,
-        )
+        err = closest_box(fp, target, arm.neutral, q, True)  # (the catalogue's family angles are the URDF's)
         assert err >= 0.0, target.tolist()
         used += 1
         assert arm.limits.contains(q, tol=0.0)
@@ -195,9 +181,7 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         assert r.iterations == 0 and math.isclose(r.position_error, err, rel_tol=1e-12)
         for k in rng.choice(len(a.atlas_q), 12, replace=False):
             q0 = a.atlas_q[k].copy()
-            other, _, _ = refine_family(
-                fp.P, fp.J, a.lower, a.upper, a.C, a.clo, a.chi, target, 0.0, 0.0, q0, 300, 0.4, 1e-12
-            )
+            other, _, _ = refine_family(fp, target, 0.0, 0.0, q0, 300, 0.4, 1e-12)
             assert err <= other + 1e-9, (target.tolist(), err, other)
         if used >= 40:
             break
@@ -326,14 +310,25 @@ def test_idealised_geometry_is_refined_on_the_exact_model(arm_copy: Callable[...
 
 
 def test_arm_outside_the_family_gets_the_qp(arm_copy: Callable[..., Path]) -> None:
+    """gupta3 with no [geometry] and its elbow's axis tilted 0.1 rad: no longer parallel to the
+    shoulder's, so no closed form; the numerical IK answers, and the catalogue says why."""
     text_start = "# Seed 002: r = sqrt"
     folder = arm_copy("gupta3")
     toml = (folder / "robot.toml").read_text()
     head, rest = toml.split(text_start)
     tail = rest[rest.index("# Arduino") :]
     (folder / "robot.toml").write_text(head + tail)
+    urdf = (folder / "robot.urdf").read_text()
+    elbow = urdf.index('<joint name="elbow"')
+    axis = urdf.index('<axis xyz="0 -1 0"/>', elbow)
+    tilted = f'<axis xyz="0 {-math.cos(0.1)!r} {math.sin(0.1)!r}"/>'
+    (folder / "robot.urdf").write_text(urdf[:axis] + tilted + urdf[axis + len('<axis xyz="0 -1 0"/>') :])
     arm = robots.load_folder(folder)
     assert arm.geometry is None
+    assert (
+        arm.solver
+        == "numerical: joint 'elbow''s axis is not parallel to 'shoulder''s: one pitch joint, the family needs 2 or 3"
+    )
     for q in random_in_limits(arm, 100, seed=25):
         target = arm.fk(q)
         r = solve_ik(arm, target)

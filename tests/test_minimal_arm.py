@@ -186,4 +186,5 @@ def test_catalogue_and_info_say_which_solver_an_arm_gets_and_why(tmp_path: Path)
     assert robots.load("gupta3").solver == "closed form: yaw + 2 pitch (robot.toml [geometry])"
     assert "held level by a linkage" in robots.load("desk4").solver
     mine = robots.load_folder(_folder(tmp_path))
-    assert mine.solver.startswith("numerical: no [geometry]") and mine.describe()["solver"] == mine.solver
+    assert mine.solver == "closed form: yaw + 3 pitch + roll (found from the URDF's chain)"
+    assert mine.describe()["solver"] == mine.solver

@@ -13,8 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armd import planning, solvers
+from armd import planning, robots, solvers
 from armd.solvers import jit
+from armd.solvers.arm import arm_state
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -55,7 +56,7 @@ def test_the_native_build_is_there_and_used() -> None:
     # to Numba's by a test that calls an inner function itself; under the tests, each is wrapped
     # in the signature check)
     for caller, name in (
-        (solvers.ik, "solve_packed"),
+        (solvers.ik, "solve_point"),
         (solvers.batch, "solve_many"),
         (planning.trajectory, "all_clear"),
     ):
@@ -65,16 +66,24 @@ def test_the_native_build_is_there_and_used() -> None:
 
 def test_a_call_with_the_wrong_arrays_is_refused_under_the_tests() -> None:
     """The native build reads what it is given as what its signature says; the tests' check
-    refuses anything else (here an int array for a float one, a 2-D one for a 1-D one)."""
+    refuses anything else (here an int array for a float one, a 2-D one for a 1-D one, an arm
+    whose arrays are not contiguous or of another type)."""
     assert jit.CHECK
-    fk = solvers.ik.family_fk
-    P, J, out = np.ones(8), np.array([0, 1, 2, -1]), np.empty(3)
-    fk(P, J, np.zeros(3), out)
-    fk(P, J, np.zeros((3, 2)).T[0], out)  # (any strides: a column of a transposed array)
+    pose = solvers.ik.arm_pose
+    arm = robots.load("insomniac")
+    arrays = arm_state(arm).arrays
+    assert arrays is not None
+    out = np.empty(5)
+    pose(arrays, arm.neutral, out[:3])
+    pose(arrays, np.zeros((5, 2)).T[0], out[:3])  # (any strides: a column of a transposed array)
+    with pytest.raises(TypeError, match="argument 1"):
+        pose(arrays, np.zeros(5, dtype=np.int64), out)
     with pytest.raises(TypeError, match="argument 2"):
-        fk(P, J, np.zeros(3, dtype=np.int64), out)
-    with pytest.raises(TypeError, match="argument 3"):
-        fk(P, J, np.zeros(3), np.empty((1, 3)))
+        pose(arrays, arm.neutral, np.empty((1, 3)))
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): sign"):
+        pose(arrays._replace(sign=np.ones((5, 2))[:, 0]), arm.neutral, out[:3])
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): family: J is float64"):
+        pose(arrays._replace(family=arrays.family._replace(J=np.zeros(4))), arm.neutral, out[:3])
     assert jit.parse_signature("Tuple((i8, f8))(f8[:], i8, f8[:, ::1], b1, f8[::1])") == [
         ("float64", 1, False),
         ("int64", 0, False),
@@ -116,7 +125,7 @@ def test_native_and_jit_give_the_same_answers() -> None:
 def test_the_jit_cache_is_filed_by_module_not_by_checkout_path(tmp_path: Path) -> None:
     code = (
         "import json; from armd.solvers import analytic; "
-        "impl = analytic.solve_packed._cache._impl; "
+        "impl = analytic.solve_point._cache._impl; "
         "print(json.dumps([impl.locator.get_cache_path(), type(impl.locator).root]))"
     )
     path, root = _run(code, ARMD_NATIVE="0", ARMD_CACHE_DIR=str(tmp_path))  # type: ignore[misc]

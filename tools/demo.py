@@ -48,15 +48,27 @@ def _fmt(v: object) -> str:
     return str(v)
 
 
+def _frame(arm: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """The arm's yaw axis (a point of it), outward and sideways directions at the neutral pose
+    (horizontal, unit) and its horizontal reach there [m]."""
+    home = arm.fk(arm.neutral)
+    axis = np.array([*arm.geometry.base, 0.0]) if arm.geometry is not None else np.zeros(3)
+    out = (home - axis) * np.array([1.0, 1.0, 0.0])
+    reach = float(np.linalg.norm(out))
+    outward = out / reach if reach > 1e-6 else np.array([1.0, 0.0, 0.0])
+    return axis, outward, np.array([-outward[1], outward[0], 0.0]), reach or 0.2
+
+
 def _candidates(arm: Robot) -> np.ndarray:
     """Points in front of the arm, nearest the neutral tool point first."""
     home = arm.fk(arm.neutral)
-    lateral = arm.geometry.pivot[1] if arm.geometry is not None else 0.0
-    reach = float(np.hypot(home[0], home[1])) or 0.2
-    xs = np.linspace(0.2 * reach, 1.2 * reach, 30)
+    axis, outward, side, reach = _frame(arm)
+    lateral = float((home - axis) @ side)
+    us = np.linspace(0.2 * reach, 1.2 * reach, 30)
     zs = np.linspace(home[2] - 1.5 * reach, home[2] + 0.5 * reach, 40)
-    X, Z = np.meshgrid(xs, zs)
-    pts = np.column_stack([X.ravel(), np.full(X.size, lateral + 0.03), Z.ravel()])
+    U, Z = np.meshgrid(us, zs)
+    pts = axis + np.outer(U.ravel(), outward) + (lateral + 0.03) * side
+    pts[:, 2] = Z.ravel()
     return pts[np.argsort(np.linalg.norm(pts - home, axis=1))]
 
 
@@ -154,7 +166,8 @@ class Demo:
             assert target is not None
             self.ik(arm, f"ik {approach}", target, approach)
         home = arm.fk(arm.neutral)
-        far = [round(float(2.5 * home[0] + 0.3), 3), round(float(home[1]), 3), round(float(home[2]), 3)]
+        _, outward, _, reach = _frame(arm)
+        far = [round(float(v), 3) for v in home + (1.5 * reach + 0.3) * outward]
         self.ik(arm, "ik unreachable", far, None)
         target = _target(arm, None)
         assert target is not None

@@ -98,7 +98,8 @@ def compute(robot: Robot, *, step: float = 0.004, heights: int = 16, progress: P
         raise BadRequest(f"heights must be a whole number in [1, 200], got {heights!r}", field="heights")
     reach, zlo, zhi = _extent(robot)
     pad = 0.1 * max(reach, zhi - zlo)
-    lateral = robot.geometry.pivot[1] if robot.geometry is not None else 0.0
+    g = robot.geometry
+    lateral = g.base[1] + g.pivot[1] if g is not None else 0.0  # (the plane the arm turns in, facing +x)
     xs = _axis(-reach - pad, reach + pad, step)
     zs = _axis(zlo - pad, zhi + pad, step)
     levels = np.linspace(zlo, zhi, heights)
@@ -184,7 +185,7 @@ class Drawn:
 
 
 def plot(ws: Workspace, robot: Robot, out: str | Path, dpi: int = 100) -> Drawn:
-    """Write the two views to a PNG; the arm drawn at its neutral pose (turned to yaw 0)."""
+    """Write the two views to a PNG; the arm drawn at its neutral pose (turned to face +x)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -193,8 +194,9 @@ def plot(ws: Workspace, robot: Robot, out: str | Path, dpi: int = 100) -> Drawn:
 
     fig, (ax_side, ax_top) = plt.subplots(1, 2, figsize=(13, 6), dpi=dpi)
     q = robot.neutral.copy()
-    if robot.geometry is not None:
-        q[robot.geometry.yaw] = 0.0
+    g = robot.geometry
+    if g is not None:  # facing +x, where the side view is (the limits allowing)
+        q[g.yaw] = min(max(-g.zero[0] / g.sign[0], robot.limits.lower[g.yaw]), robot.limits.upper[g.yaw])
     stick = robot.skeleton(q)
     half = ws.step / 2
     for ax, view, (a, b) in ((ax_side, ws.side, (0, 2)), (ax_top, ws.top, (0, 1))):

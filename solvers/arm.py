@@ -1,0 +1,159 @@
+"""The solver's state for one arm, built once and kept by the arm (:meth:`Robot.derived`).
+
+:func:`arm_state` gives, for a :class:`~armd.robots.Robot`, the compiled code's arrays
+(:class:`~armd.solvers.arrays.Arm`, where the arm is of the closed-form family), the QP on the
+exact model, the atlas (in-limit configurations spread over joint space with their tool points:
+starts for the closest-point search and the numerical IK) and per-thread scratch buffers.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+from armd.robots import Robot
+from armd.robots.geometry import Geometry
+from armd.robots.types import FloatArray
+
+from .arrays import Arm, Family
+from .geometric import arm_pose
+from .qp import QPRefiner
+
+ATLAS_SIZE = 4096
+
+
+class Buffers(threading.local):
+    """Scratch arrays for the compiled stage, one set per thread."""
+
+    def __init__(self, n: int) -> None:
+        self.qs = np.zeros((4, n))
+        self.ids = np.zeros(4, dtype=np.int64)
+        self.errs = np.zeros(4)
+        self.work = np.zeros((4, 5))
+        self.reached = np.zeros(3)
+        self.point = np.zeros(3)
+
+
+@dataclass
+class ArmState:
+    """Per-robot solver state (see the module's doc)."""
+
+    robot: Robot
+    arrays: Arm | None  # the compiled code's arrays; None outside the family
+    qp: QPRefiner
+    weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
+    exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
+    atlas_q: FloatArray  # (k, n) in-limit configurations [rad]
+    atlas_p: FloatArray  # (k, 3) their tool points [m]
+    buffers: Buffers
+
+    @property
+    def family(self) -> Family | None:
+        return None if self.arrays is None else self.arrays.family
+
+
+_lock = threading.Lock()
+
+
+def arm_state(robot: Robot) -> ArmState:
+    """``robot``'s solver state, made on first use (thread-safe) and kept by the robot."""
+    state = robot.derived.get("solver")
+    if state is None:
+        with _lock:
+            state = robot.derived.get("solver")
+            if state is None:
+                state = _build(robot)
+                robot.derived["solver"] = state
+    assert isinstance(state, ArmState)
+    return state
+
+
+def _c(a: FloatArray) -> FloatArray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def family_arrays(robot: Robot, g: Geometry) -> Arm:
+    """The compiled code's arrays for ``robot`` of geometry ``g`` (:mod:`solvers.arrays`)."""
+    lim = robot.limits
+    n = robot.nq
+    sign = np.ones(n)
+    zero = np.zeros(n)
+    for k, j in enumerate(g.joints):
+        sign[j], zero[j] = g.sign[k], g.zero[k]
+    # the box in the family's angles (a joint whose sign is -1 has its ends swapped)
+    a, b = sign * lim.lower + zero, sign * lim.upper + zero
+    C = np.array([c.coefficients for c in lim.coupled]).reshape(len(lim.coupled), n)
+    # C q = C S (theta - zero): the rows in the family's angles, their bounds moved by C S zero
+    Cf = C * sign
+    shift = Cf @ zero if len(C) else np.zeros(0)
+    clo = np.array([c.lower for c in lim.coupled]) + shift
+    chi = np.array([c.upper for c in lim.coupled]) + shift
+    J = np.array([g.yaw, g.shoulder, g.elbow, -1 if g.wrist is None else g.wrist], dtype=np.int64)
+    pitch_joints = [int(j) for j in J[1:] if j >= 0]
+    exact_pitch_search = not np.any(C[:, pitch_joints]) if len(C) else True
+    P = np.array(
+        [g.pivot[0], g.pivot[1], g.pivot[2], g.upper_arm, g.forearm, g.hand, g.tool_offset[0], g.tool_offset[1]]
+    )
+    family = Family(
+        _c(P),
+        np.ascontiguousarray(J),
+        _c(np.minimum(a, b)),
+        _c(np.maximum(a, b)),
+        _c(1.0 / lim.velocity),
+        _c(Cf),
+        _c(clo),
+        _c(chi),
+        bool(exact_pitch_search),
+        bool(g.level),
+    )
+    model = np.zeros((4, 3))
+    roll = -1
+    if g.roll is not None and g.roll_model is not None:
+        roll = g.roll
+        model = np.array([g.roll_model.point, g.roll_model.axis, g.roll_model.tool, g.roll_model.tool_axis])
+    return Arm(
+        family,
+        _c(sign),
+        _c(zero),
+        _c(lim.lower),
+        _c(lim.upper),
+        _c(np.array(g.base)),
+        float(g.pitch_offset),
+        int(roll),
+        _c(model),
+    )
+
+
+def _atlas(robot: Robot, n: int = ATLAS_SIZE) -> FloatArray:
+    """Fixed quasi-random configurations within every limit."""
+    rng = np.random.default_rng(20261121)
+    qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(4 * n, robot.nq))
+    return np.ascontiguousarray(qs[robot.limits.contains_batch(qs, tol=0.0)][:n])
+
+
+def _build(robot: Robot) -> ArmState:
+    g = robot.geometry
+    arrays = family_arrays(robot, g) if g is not None else None
+    exact = False
+    if arrays is not None:
+        rng = np.random.default_rng(0)
+        qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(64, robot.nq))
+        out = np.empty(3)
+        worst = 0.0
+        for q in qs:
+            arm_pose(arrays, np.ascontiguousarray(q), out)
+            worst = max(worst, float(np.max(np.abs(out - robot.fk(q)))))
+        exact = worst < 1e-12
+    atlas_q = _atlas(robot)
+    return ArmState(
+        robot,
+        arrays,
+        QPRefiner(robot),
+        1.0 / robot.limits.velocity,
+        exact,
+        atlas_q,
+        np.ascontiguousarray([robot.fk(q) for q in atlas_q]),
+        Buffers(robot.nq),
+    )
