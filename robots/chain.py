@@ -18,6 +18,7 @@ of the axis.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -28,8 +29,9 @@ from .geometry import Geometry, RollModel
 from .limits import JointLimits
 from .types import FloatArray
 
-PARALLEL = 1e-9  # |sin| between axes that count as parallel (and as vertical, horizontal)
-EXACT = 1e-9  # [m] the family's FK must match Pinocchio's to this, everywhere
+PARALLEL = 1e-3  # |sin| between axes that count as parallel (and as vertical, horizontal)
+EXACT = 1e-9  # [m] the family's FK matching Pinocchio's to this everywhere is the exact model
+NEAR = 1e-3  # [m] ... to this, a seed: the answers are refined on the exact model (a URDF's 1.5708 for pi/2)
 _REVOLUTE = {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"}
 
 
@@ -91,7 +93,7 @@ def recognise(
     tool_dir = np.array(placement.rotation) @ tool_axis
 
     yaw_axis = axes[0]
-    if abs(abs(yaw_axis[2]) - 1.0) > PARALLEL:
+    if math.hypot(yaw_axis[0], yaw_axis[1]) > PARALLEL:
         return _no(f"the first joint, {names[0]!r}, does not turn about the vertical (its axis is {_fmt(yaw_axis)})")
     lateral = axes[1]
     if abs(lateral[2]) > PARALLEL:
@@ -114,9 +116,10 @@ def recognise(
 
     # the yaw frame at q = 0: u outward, v = z x u lateral; the arm's outward side is where the
     # tool is at the neutral pose
-    v0 = lateral / np.linalg.norm(lateral)
-    u0 = np.cross(v0, [0.0, 0.0, 1.0])
-    base = points[0][:2].copy()
+    h = math.hypot(lateral[0], lateral[1])
+    v0: FloatArray = np.array([lateral[0] / h, lateral[1] / h, 0.0])
+    u0: FloatArray = np.array([v0[1], -v0[0], 0.0])  # v0 x z
+    base = np.array(points[0][:2], dtype=np.float64)
     if _outward(model, fid, neutral, chain, u0, base, v0) < 0.0:
         u0, v0 = -u0, -v0
 
@@ -169,10 +172,15 @@ def recognise(
         source="found from the URDF's chain",
     )
     worst = _worst_mismatch(model, fid, geometry, limits)
-    if worst > EXACT:
+    if worst > NEAR:
         return _no(
             f"the chain has the family's joints but its FK differs from the family's by {worst:.3g} m "
             "(a case armd does not recognise yet: give [geometry] in robot.toml)"
+        )
+    if worst > EXACT:  # nearly: axes a hair off parallel or vertical (rounded angles in the URDF)
+        geometry = dataclasses.replace(
+            geometry,
+            source=f"found from the URDF's chain to {worst:.2g} m, each answer refined on the exact model",
         )
     shape = f"yaw + {pitches} pitch" + (" + roll" if roll_j is not None else "")
     return Recognised(geometry, shape)

@@ -47,6 +47,12 @@ class RollModel:
     tool: Vector  # the tool point from ``point`` at roll 0 [m]
     tool_axis: Vector  # the tool axis at roll 0 (unit)
 
+    @property
+    def reach(self) -> float:
+        """How far [m] the roll can move the tool point: twice its distance from the roll axis."""
+        w, d = np.array(self.tool), np.array(self.axis)
+        return 2.0 * float(np.linalg.norm(w - d * float(d @ w)))
+
     def last_link(self, roll: float) -> tuple[float, float, float, float]:
         """(length [m], angle [rad], lateral offset [m], tool pitch minus link angle [rad]) at ``roll``."""
         d = np.array(self.axis)

@@ -80,6 +80,9 @@ def solve_one(
 @jit
 def _solve_mapped(
     arm: Arm,
+    f: Family,
+    zero: FloatArray,
+    offset: float,
     ref: FloatArray,
     point: FloatArray,
     prefs: FloatArray,
@@ -91,8 +94,8 @@ def _solve_mapped(
 ) -> tuple[int, int, float, float]:
     """:func:`solve_one` in the URDF's angles and ``base``: the seed, the target and the preferred
     pitches mapped into the family's, the branches back; the first (chosen) branch's tool point
-    into ``reached``. (code, branches, pitch used, the chosen branch's tool pitch, not wrapped)."""
-    f, zero, offset = view(arm, ref)
+    into ``reached``. (code, branches, pitch used, the chosen branch's tool pitch, not wrapped).
+    ``f``, ``zero``, ``offset``: the arm's view at ``ref`` (:func:`solvers.arrays.view`)."""
     n = ref.shape[0]
     ref_f = np.empty(n)
     to_family(arm, zero, ref, ref_f)
@@ -131,7 +134,8 @@ def solve_point(
     ``qs`` (4, n) (the URDF's angles), ``ids`` and ``errs`` (the formula's errors); the first
     branch's tool point into ``reached``. Returns (code, branches, pitch used, the first branch's
     tool pitch, not wrapped). ``work`` (4, 5) is scratch."""
-    return _solve_mapped(arm, ref, point, prefs, qs, ids, errs, work, reached)
+    f, zero, offset = view(arm, ref)
+    return _solve_mapped(arm, f, zero, offset, ref, point, prefs, qs, ids, errs, work, reached)
 
 
 @entry("void(Arm, f8[:, :], f8[:, :], f8[:, :], f8[:, :], i8[:], f8[:], i8[:], f8[:], f8[:, :])")
@@ -156,8 +160,13 @@ def solve_many(
     ids = np.empty(4, dtype=np.int64)
     errs = np.empty(4)
     work = np.empty((4, 5))
+    f, zero, offset = view(arm, refs[0])
     for i in range(points.shape[0]):
-        code, m, phi, pitch = _solve_mapped(arm, refs[i], points[i], prefs[i], qs, ids, errs, work, reached_out[i])
+        if arm.roll >= 0 and i > 0 and refs[i, arm.roll] != refs[i - 1, arm.roll]:
+            f, zero, offset = view(arm, refs[i])  # (a roll that moves the tool: the view is the roll's)
+        code, m, phi, pitch = _solve_mapped(
+            arm, f, zero, offset, refs[i], points[i], prefs[i], qs, ids, errs, work, reached_out[i]
+        )
         code_out[i] = code
         if m > 0:
             for c in range(n):

@@ -12,6 +12,7 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+import pinocchio as pin
 
 from armd.robots import Robot
 from armd.robots.geometry import Geometry
@@ -19,6 +20,7 @@ from armd.robots.types import FloatArray
 
 from .arrays import Arm, Family
 from .geometric import arm_pose
+from .kinematics import Chain
 from .qp import QPRefiner
 
 ATLAS_SIZE = 4096
@@ -42,6 +44,7 @@ class ArmState:
 
     robot: Robot
     arrays: Arm | None  # the compiled code's arrays; None outside the family
+    chain: Chain  # the exact model, compiled
     qp: QPRefiner
     weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
     exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
@@ -126,6 +129,57 @@ def family_arrays(robot: Robot, g: Geometry) -> Arm:
     )
 
 
+def chain_of(robot: Robot) -> Chain:
+    """The compiled code's exact model of ``robot`` (:mod:`solvers.kinematics`): the joints from
+    the base frame to the tool frame as Pinocchio's model has them, and the arm's limits."""
+    model = robot.model
+    joints = []
+    j = int(model.frames[robot.tool_frame_id].parentJoint)
+    while j > 0:
+        joints.append(j)
+        j = int(model.parents[j])
+    joints.reverse()
+    data = model.createData()
+    pin.forwardKinematics(model, data, np.zeros(model.nq))
+    k = len(joints)
+    placement, axis = np.zeros((k, 4, 4)), np.zeros((k, 3))
+    prismatic, coordinate = np.zeros(k, dtype=np.int64), np.zeros(k, dtype=np.int64)
+    scale, offset = np.ones(k), np.zeros(k)
+    for r, j in enumerate(joints):
+        jm = model.joints[j]
+        S = np.array(data.joints[j].S).reshape(6)  # the joint's motion in its frame (a mimic's: scaled)
+        if jm.shortname() == "JointModelMimic":
+            mimic = jm.extract()
+            scale[r], offset[r] = float(mimic.scaling), float(mimic.offset)
+        placement[r] = model.jointPlacements[j].homogeneous
+        moving = S[:3] if np.linalg.norm(S[3:]) < 1e-12 else S[3:]
+        prismatic[r] = int(np.linalg.norm(S[3:]) < 1e-12)
+        axis[r] = moving / (scale[r] if scale[r] != 0.0 else 1.0)
+        axis[r] /= np.linalg.norm(axis[r])
+        coordinate[r] = jm.idx_q
+    lim = robot.limits
+    C = np.array([c.coefficients for c in lim.coupled]).reshape(len(lim.coupled), robot.nq)
+    g = robot.geometry
+    return Chain(
+        _c(placement),
+        _c(axis),
+        prismatic,
+        coordinate,
+        _c(scale),
+        _c(offset),
+        _c(model.frames[robot.tool_frame_id].placement.homogeneous),
+        _c(robot.tool_axis),
+        _c(lim.lower),
+        _c(lim.upper),
+        _c(C),
+        _c(np.array([c.lower for c in lim.coupled])),
+        _c(np.array([c.upper for c in lim.coupled])),
+        -1 if g is None else int(g.yaw),
+        1.0 if g is None else float(g.sign[0]),
+        0.0 if g is None else float(g.zero[0]),
+    )
+
+
 def _atlas(robot: Robot, n: int = ATLAS_SIZE) -> FloatArray:
     """Fixed quasi-random configurations within every limit."""
     rng = np.random.default_rng(20261121)
@@ -150,6 +204,7 @@ def _build(robot: Robot) -> ArmState:
     return ArmState(
         robot,
         arrays,
+        chain_of(robot),
         QPRefiner(robot),
         1.0 / robot.limits.velocity,
         exact,

@@ -63,7 +63,7 @@ class Arm(NamedTuple):
     roll_model: FloatArray  # (4, 3) a, d, w, x0 in the last link's frame (robots.geometry.RollModel)
 
 
-# What each field is, for the checks of native calls (solvers.jit) and the build's signatures:
+# What each field is, for the checks of native calls and the build's signatures (solvers.jit):
 # (dtype, number of dimensions) or a nested tuple's name.
 FIELDS: dict[str, tuple[tuple[str, Any], ...]] = {
     "Family": (
@@ -92,24 +92,6 @@ FIELDS: dict[str, tuple[tuple[str, Any], ...]] = {
 }
 CLASSES = {"Family": Family, "Arm": Arm}
 register_tuples(CLASSES, FIELDS)
-
-
-def numba_types() -> dict[str, Any]:
-    """The two tuples as Numba types (C-contiguous arrays), by name: for the build's signatures."""
-    from numba import types
-
-    scalars = {"f8": types.float64, "i8": types.int64, "b1": types.boolean}
-    out: dict[str, Any] = {}
-    for name in ("Family", "Arm"):
-        members = []
-        for _, spec in FIELDS[name]:
-            if isinstance(spec, str):
-                members.append(out[spec])
-            else:
-                dtype, ndim = spec
-                members.append(types.Array(scalars[dtype], ndim, "C") if ndim else scalars[dtype])
-        out[name] = types.NamedTuple(members, CLASSES[name])
-    return out
 
 
 @jit

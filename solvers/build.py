@@ -19,7 +19,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 COMPILED = {
-    "solvers": ("activeset", "analytic", "arrays", "closest", "family", "geometric", "jit", "limits", "pitch"),
+    "solvers": (
+        "activeset",
+        "analytic",
+        "arrays",
+        "closest",
+        "family",
+        "geometric",
+        "jit",
+        "kinematics",
+        "limits",
+        "lm",
+        "pitch",
+    ),
     "planning": ("compiled",),
     "robots": ("angles", "types"),
 }
@@ -45,22 +57,20 @@ def build(target: Path) -> None:
         _import_tree(Path(tmp))
         import importlib
 
+        import numba
         from numba.pycc import CC
 
         jit = importlib.import_module("armd.solvers.jit")
-        import numba
-
-        named = importlib.import_module("armd.solvers.arrays").numba_types()
-        names = {**vars(numba.types), **named}
         for layer, modules in COMPILED.items():
             for name in modules:
                 importlib.import_module(f"armd.{layer}.{name}")
+        names = {**vars(numba.types), **jit.numba_types()}  # (a signature may name a named tuple)
         cc = CC(target.name.split(".")[0], source_module=jit)
         cc.output_dir = str(target.parent)
         cc.output_file = target.name
         cc.target_cpu = "host"  # (built where it runs: pip builds it on the machine it installs on)
         for name, (dispatcher, signature) in sorted(jit.ENTRIES.items()):
-            cc.export(name, eval(signature, {}, names))(dispatcher.py_func)  # (a signature names a named tuple)
+            cc.export(name, eval(signature, {}, names))(dispatcher.py_func)
         digest = jit.native_digest_number(jit.source_digest())
 
         def source_digest() -> int:

@@ -1,12 +1,11 @@
 """The closest configuration within limits to a target, on the family's exact model, compiled.
 
-For an arm whose ``[geometry]`` reproduces its URDF (checked against Pinocchio when the
-solver first sees the arm), the family's FK formula *is* the exact model, with an analytic
-Jacobian. This module runs the same Levenberg-Marquardt iteration as :mod:`solvers.qp`
-(each step a QP with the box and coupled limits as hard constraints, solved by
-:mod:`solvers.activeset`; a step is taken only if it lowers the cost) entirely in compiled
-code, from several starts, and keeps the best: an unreachable target is answered in tens
-of microseconds instead of milliseconds. Where the optimum's stationary points can all be
+For an arm whose closed form reproduces its URDF (checked against Pinocchio when the solver
+first sees the arm), the family's FK formula *is* the exact model, with an analytic Jacobian.
+This module runs armd's Levenberg-Marquardt iteration (:mod:`solvers.lm`: each step a QP with
+the box and coupled limits as hard constraints; a step is taken only if it lowers the cost) on
+it from several starts, and keeps the best: an unreachable target is answered in tens of
+microseconds. Where the optimum's stationary points can all be
 enumerated (:func:`closest_box`, :func:`closest_level`: every catalogue arm), the iteration is
 not needed at all: the enumeration is exact, where the iteration can stop in a local minimum.
 """
@@ -20,154 +19,18 @@ from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
 
-from .activeset import solve_qp
 from .analytic import NONE, solve_one
-from .arrays import Arm, Family, family_pitch, from_family, to_family, view
+from .arrays import Arm, Family, from_family, to_family, view
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import entry, jit
 from .limits import limits_ok
+from .lm import MARGIN, family_cost, refine_family
 
 IntArray = NDArray[np.int64]
 
-MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
 SLACK = 1e-9  # relative (and [m^2] absolute) slack of closest_box's bounds: a skip is never a rounding's doing
 FREE_PREFS = np.array([0.0, -math.pi / 2])  # the free-pitch preference (solvers.ik.FREE_PITCHES)
 ALPHA_STEP = math.pi / 32  # [rad] sampling of the target's bearing in the arm frame (closest_level)
-
-
-@jit
-def family_jacobian(f: Family, q: FloatArray, out: FloatArray) -> None:
-    """d(tool point)/dq [m/rad] of the family's FK into ``out`` (3, n); zero for other joints."""
-    P, J = f.P, f.J
-    py, l1, l2, l3 = P[1], P[3], P[4], P[5]
-    out[:] = 0.0
-    yaw = q[J[0]]
-    p1 = q[J[1]]
-    p2 = p1 + q[J[2]]
-    c0, s0 = math.cos(yaw), math.sin(yaw)
-    du = np.zeros(3)
-    dz = np.zeros(3)
-    s1, c1, s2, c2 = math.sin(p1), math.cos(p1), math.sin(p2), math.cos(p2)
-    s3 = c3 = 0.0
-    if J[3] >= 0:
-        p3 = p2 + q[J[3]]
-        s3, c3 = l3 * math.sin(p3), l3 * math.cos(p3)
-    du[0] = -(l1 * s1 + l2 * s2 + s3)
-    dz[0] = l1 * c1 + l2 * c2 + c3
-    du[1] = -(l2 * s2 + s3)
-    dz[1] = l2 * c2 + c3
-    du[2] = -s3
-    dz[2] = c3
-    u = P[0] + l1 * c1 + l2 * c2 + c3 + P[6]
-    out[0, J[0]] = -s0 * u - c0 * py
-    out[1, J[0]] = c0 * u - s0 * py
-    for k in range(3):
-        j = J[k + 1]
-        if j < 0:
-            continue
-        out[0, j] = c0 * du[k]
-        out[1, j] = s0 * du[k]
-        out[2, j] = dz[k]
-
-
-@jit
-def _cost(f: Family, q: FloatArray, target: FloatArray, pitch: float, w2: float, p: FloatArray) -> tuple[float, float]:
-    family_fk(f, q, p)
-    e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
-    perr = 0.0
-    if w2 > 0.0:
-        perr = wrap_angle(pitch - family_pitch(f, q))
-    return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
-
-
-@entry("Tuple((f8, f8, i8))(Family, f8[:], f8, f8, f8[:], i8, f8, f8)")
-def refine_family(
-    f: Family,
-    target: FloatArray,
-    pitch: float,
-    w2: float,
-    q: FloatArray,
-    max_iter: int,
-    step: float,
-    tol: float,
-) -> tuple[float, float, int]:
-    """Levenberg-Marquardt from ``q`` (within limits), in place: (position error [m], pitch error
-    [rad], iterations). ``w2 > 0`` adds the pitch task (sum of pitch joints) with that weight^2.
-    The family's angles and frame throughout."""
-    J, lower, upper, C, clo, chi = f.J, f.lower, f.upper, f.C, f.clo, f.chi
-    n = q.shape[0]
-    p = np.empty(3)
-    Jac = np.empty((3, n))
-    row = np.zeros(n)
-    for k in range(1, 4):
-        if J[k] >= 0:
-            row[J[k]] = 1.0
-    lb = np.empty(n)
-    ub = np.empty(n)
-    kc = C.shape[0]
-    cl = np.empty(kc)
-    cu = np.empty(kc)
-    dq = np.empty(n)
-    qn = np.empty(n)
-    cost, perr = _cost(f, q, target, pitch, w2, p)
-    mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
-    nu = 2.0
-    it = 0
-    while it < max_iter:
-        err = math.sqrt(max(cost - w2 * perr * perr, 0.0))
-        if err <= tol and abs(perr) <= tol:
-            break
-        it += 1
-        family_jacobian(f, q, Jac)
-        e = target - p
-        H = Jac.T @ Jac
-        g = -(Jac.T @ e)
-        if w2 > 0.0:
-            H += w2 * np.outer(row, row)
-            g -= w2 * perr * row
-        for i in range(n):
-            lb[i] = max(lower[i] - q[i], -step)
-            ub[i] = min(upper[i] - q[i], step)
-        for r in range(kc):
-            cq = C[r] @ q
-            cl[r] = min(clo[r] + MARGIN - cq, 0.0)
-            cu[r] = max(chi[r] - MARGIN - cq, 0.0)
-        if mu < 0.0:
-            mu = 1e-3 * max(np.max(np.diag(H)), 1e-12)
-        accepted = False
-        cost_new = cost
-        perr_new = perr
-        for _ in range(12):
-            Hd = H.copy()
-            for i in range(n):
-                Hd[i, i] += mu
-            if not solve_qp(Hd, g, lb, ub, C, cl, cu, dq):
-                mu *= nu
-                nu *= 2.0
-                continue
-            for i in range(n):
-                qn[i] = min(max(q[i] + dq[i], lower[i]), upper[i])
-            cost_new, perr_new = _cost(f, qn, target, pitch, w2, p)
-            # gain ratio: actual decrease over the decrease the quadratic model predicts
-            predicted = float(-(g @ dq) - 0.5 * (dq @ (H @ dq)))
-            if cost_new < cost and limits_ok(qn, f, 0.0):
-                rho = 0.5 * (cost - cost_new) / max(predicted, 1e-300)
-                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                nu = 2.0
-                accepted = True
-                break
-            mu *= nu
-            nu *= 2.0
-        if not accepted:
-            _cost(f, q, target, pitch, w2, p)
-            break
-        progress = cost - cost_new
-        q[:] = qn
-        cost, perr = cost_new, perr_new
-        # the error no longer moves by 1e-11 m (or the step is nothing): a constrained optimum
-        if progress <= 2e-11 * math.sqrt(cost) + 1e-24 or np.max(np.abs(dq)) < 1e-13:
-            break
-    return math.sqrt(max(cost - w2 * perr * perr, 0.0)), abs(perr), it
 
 
 # -- a level arm: lateral pivot offset, coupled limits on the planar joints ----------------------
@@ -694,6 +557,26 @@ def closest_box(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatArra
     return math.sqrt((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2)
 
 
+@jit
+def _aim_yaw(f: Family, target: FloatArray, theta: FloatArray) -> None:
+    """The yaw within limits that brings the tool's horizontal part nearest the target's, for
+    the pose ``theta`` (in place): toward its bearing, the tool's lateral offset allowed for."""
+    p = np.empty(3)
+    yj = f.J[0]
+    keep = theta[yj]
+    theta[yj] = 0.0
+    family_fk(f, theta, p)
+    theta[yj] = keep
+    h = math.hypot(target[0], target[1])
+    if h == 0.0 or (p[0] == 0.0 and p[1] == 0.0):
+        return
+    aim = math.atan2(target[1], target[0]) - math.atan2(p[1], p[0])
+    ok, v = wrap_into(aim, f.lower[yj], f.upper[yj], keep, 0.0)
+    if not ok:
+        v = f.lower[yj] if abs(wrap_angle(f.lower[yj] - aim)) <= abs(wrap_angle(f.upper[yj] - aim)) else f.upper[yj]
+    theta[yj] = v
+
+
 @entry("Tuple((f8, f8, i8))(Arm, f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])")
 def closest_family(
     arm: Arm,
@@ -720,10 +603,23 @@ def closest_family(
     goal[0], goal[1], goal[2] = target[0] - arm.base[0], target[1] - arm.base[1], target[2]
     theta = np.empty(n)
     if w2 == 0.0:
-        err = closest_box(f, goal, ref_f, theta, True)
-        if err >= 0.0:
-            from_family(arm, zero, theta, q_out)
-            return err, 0.0, 0
+        if f.J[3] >= 0 and f.P[1] != 0.0:
+            # a wrist arm whose tool is off the yaw's plane (the SO-101's, by 0.4 mm): the
+            # enumeration without the offset is within O(offset^2) of the optimum; the
+            # iteration takes it the rest of the way
+            P0 = f.P.copy()
+            P0[1] = 0.0
+            flat = Family(P0, f.J, f.lower, f.upper, f.weights, f.C, f.clo, f.chi, f.exact_pitch_search, f.level)
+            if closest_box(flat, goal, ref_f, theta, True) >= 0.0:
+                _aim_yaw(f, goal, theta)
+                err, _, it = refine_family(f, goal, 0.0, 0.0, theta, 5, 0.4, 1e-12)
+                from_family(arm, zero, theta, q_out)
+                return err, 0.0, it
+        else:
+            err = closest_box(f, goal, ref_f, theta, True)
+            if err >= 0.0:
+                from_family(arm, zero, theta, q_out)
+                return err, 0.0, 0
     goal_pitch = pitch - offset
     order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
     dist = np.full(n_atlas, np.inf)
@@ -760,7 +656,7 @@ def closest_family(
                 continue
         else:
             continue
-        costs[s], _ = _cost(f, starts[s], goal, goal_pitch, w2, p)
+        costs[s], _ = family_cost(f, starts[s], goal, goal_pitch, w2, p)
     floor = np.min(costs)
     best = 1e300
     iters = 0

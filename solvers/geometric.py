@@ -91,7 +91,7 @@ def two_link(p: float, q: float, tx: float, ty: float, out: FloatArray) -> int:
     return count
 
 
-@entry("i8(f8[:], b1, f8, f8, f8, f8, f8[:, :])")
+@jit
 def branches(P: FloatArray, has_wrist: bool, x: float, y: float, z: float, phi: float, out: FloatArray) -> int:
     """Every branch for target (x, y, z) [m] and tool pitch ``phi`` [rad] (ignored without a wrist).
 

@@ -39,7 +39,8 @@ from armd.robots.types import FloatArray
 from .analytic import EXACT, NONE, solve_point
 from .arm import ArmState, arm_state
 from .closest import closest_family
-from .geometric import BRANCH_NAMES, TWO_PI, arm_pose, branches
+from .geometric import BRANCH_NAMES, arm_pose
+from .lm import refine_branches, refine_chain, solve_chain
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
@@ -47,7 +48,9 @@ DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this c
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
 PITCH_TOLERANCE = 1e-9  # [rad]
 FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference, in order
-_ATLAS_STARTS = 3
+_ATLAS_STARTS = 3  # closest-point starts from the atlas (after the seed)
+_NUMERICAL_STARTS = 8  # numerical IK starts from the atlas (after the seed)
+_NEAR = 1e-3  # [m] an idealised closed form's closest point this near: the numerical IK tries too
 _PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
 
 
@@ -144,20 +147,17 @@ def _result(
 def _refined(
     arm: ArmState, rows: list[tuple[str, FloatArray, float]], point: FloatArray, phi: float | None, tolerance: float
 ) -> tuple[list[Branch], int]:
-    """Branches of an idealised ``[geometry]`` checked on the exact model and refined by the QP
-    (inside the limits) where they miss; those the QP cannot bring in are dropped."""
-    found: list[Branch] = []
-    iterations = 0
-    for name, q, _ in rows:
-        err = _dist(arm.robot.fk(q), point)
-        if err > tolerance:
-            refined = arm.qp.solve(point, q, pitch=phi)
-            iterations += refined.iterations
-            if refined.position_error > tolerance or refined.pitch_error > PITCH_TOLERANCE:
-                continue
-            q, err = refined.q, refined.position_error
-        found.append(Branch(name, q, err))
-    return found, iterations
+    """Branches of an idealised closed form checked on the exact model and refined by the
+    iteration on it (inside the limits, :mod:`solvers.lm`) where they miss; those it cannot
+    bring in are dropped."""
+    m = len(rows)
+    qs = np.array([q for _, q, _ in rows])
+    errs, kept, its = np.empty(m), np.empty(m, dtype=bool), np.zeros(1, dtype=np.int64)
+    w2 = 0.0 if phi is None else _PITCH_WEIGHT**2
+    aim = 0.0 if phi is None else phi
+    refine_branches(arm.chain, qs, m, point, aim, w2, tolerance, PITCH_TOLERANCE, errs, kept, its)
+    found = [Branch(rows[r][0], qs[r], float(errs[r])) for r in range(m) if kept[r]]
+    return found, int(its[0])
 
 
 def _solve_family(arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float) -> IKResult:
@@ -197,93 +197,95 @@ def _solve_family(arm: ArmState, point: FloatArray, pitch: float | None, ref: Fl
             None if status == OK else reason,
         )
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
-    # target): each branch checked on the exact model and refined by the QP where it misses
+    # target): each branch checked on the exact model and iterated there where it misses, at the
+    # asked pitch (a free one was only the closed form's preference: the position alone counts)
     rows = [(names[r], qs[r], errs[r]) for r in range(m)]
     has_wrist = arm.robot.geometry is not None and arm.robot.geometry.has_wrist
-    found, iterations = _refined(arm, rows, point, phi if has_wrist else None, tolerance)
+    found, iterations = _refined(arm, rows, point, phi if has_wrist and pitch is not None else None, tolerance)
     if not found:
         return _closest(arm, point, pitch, ref, tolerance, iterations)
     return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
 
 
-def _stretched_start(arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray) -> FloatArray | None:
-    """The arm pointed at ``point``, with the target pulled into its reach: a closest-point QP start.
-
-    Without limits this is the closest configuration: a target beyond reach is best met by
-    the arm stretched toward it (with a free wrist, the hand continuing the same line).
-    """
-    assert arm.arrays is not None
-    f = arm.arrays.family
-    has_wrist = bool(f.J[3] >= 0)
-    px, py, pz, l1, l2, l3, ox, oz = f.P.tolist()
-    x, y, z = point.tolist()
-    h = math.sqrt(max(x * x + y * y - py * py, 0.0))
-    a, b = h - px - ox, z - pz - oz  # the target in the arm's plane, from the shoulder
-    lo = abs(l1 - l2) * 1.000001 + 1e-9
-    if has_wrist and pitch is not None:  # the wrist must sit one hand back from the target
-        wa, wb = a - l3 * math.cos(pitch), b - l3 * math.sin(pitch)
-        d = math.hypot(wa, wb)
-        k = min(max(d, lo), (l1 + l2) * 0.999999) / max(d, 1e-300)
-        a, b = wa * k + l3 * math.cos(pitch), wb * k + l3 * math.sin(pitch)
-        phi = pitch
-    else:
-        d = math.hypot(a, b)
-        phi = math.atan2(b, a)
-        reach = l1 + l2 + (l3 if has_wrist else 0.0)
-        k = min(max(d, lo + (l3 if has_wrist else 0.0)), reach * 0.999999) / max(d, 1e-300)
-        a, b = a * k, b * k
-    u = a + px + ox
-    yaw = math.atan2(y, x) - math.atan2(py, u)
-    c, s = math.cos(yaw), math.sin(yaw)
-    work = np.empty((4, 5))
-    count = branches(f.P, has_wrist, c * u - s * py, s * u + c * py, b + pz + oz, phi, work)
-    sign, zero = arm.arrays.sign, arm.arrays.zero
-    best: tuple[float, FloatArray] | None = None
-    for r in range(count):
-        q = ref.copy()
-        for col in range(4):
-            j = int(f.J[col])
-            if j >= 0:
-                v = sign[j] * (float(work[r, col + 1]) - zero[j])  # (the family's angle in the URDF's)
-                q[j] = v - TWO_PI * round((v - ref[j]) / TWO_PI)
-        q = arm.qp.project(q)
-        dist = _dist(arm.robot.fk(q), point)
-        if best is None or dist < best[0]:
-            best = (dist, q)
-    return None if best is None else best[1]
-
-
 def _closest(
     arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, iterations: int
 ) -> IKResult:
-    """The configuration within limits whose tool point is nearest ``point``."""
-    if arm.arrays is not None and arm.exact:  # the family formula is the exact model: compiled
+    """The configuration within limits whose tool point is nearest ``point``: on the family's
+    formula (then, where it is an idealisation of the URDF, iterated on the exact chain from
+    there), else the numerical IK's best."""
+    if arm.arrays is not None:
         q = np.empty(arm.robot.nq)
         has_wrist = bool(arm.arrays.family.J[3] >= 0)
         w2 = _PITCH_WEIGHT**2 if (pitch is not None and has_wrist) else 0.0
-        err, perr, its = closest_family(
-            arm.arrays, point, 0.0 if pitch is None else pitch, w2, ref, arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q
-        )
+        aim = 0.0 if pitch is None else pitch
+        err, perr, its = closest_family(arm.arrays, point, aim, w2, ref, arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q)
+        if not arm.exact:
+            err, perr, its2 = refine_chain(arm.chain, point, aim, w2, q, 30, 0.4, 1e-12)
+            its += its2
+            if tolerance < err <= _NEAR:  # the idealised closed form may say no where the URDF reaches
+                near = np.empty(arm.robot.nq)
+                e2, p2, its2, _ = solve_chain(
+                    arm.chain,
+                    point,
+                    aim,
+                    w2,
+                    q,
+                    q,
+                    arm.atlas_q,
+                    arm.atlas_p,
+                    _NUMERICAL_STARTS,
+                    tolerance,
+                    PITCH_TOLERANCE,
+                    near,
+                )
+                its += its2
+                if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
+                    q, err, perr = near, e2, p2
+        g = arm.robot.geometry
+        if tolerance < err <= _roll_reach(arm) and g is not None and g.roll is not None:
+            # the closed form held the wrist roll at the seed's, and the roll moves the tool by
+            # as much as is missing: the numerical IK with the roll free, from here and the atlas
+            free = np.empty(arm.robot.nq)
+            e2, p2, its2, _ = solve_chain(
+                arm.chain,
+                point,
+                0.0 if pitch is None else pitch,
+                w2,
+                q,
+                q,
+                arm.atlas_q,
+                arm.atlas_p,
+                _NUMERICAL_STARTS,
+                tolerance,
+                PITCH_TOLERANCE,
+                free,
+            )
+            its += its2
+            if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
+                q, err, perr = free, e2, p2
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
-    starts = []
-    if arm.arrays is not None:
-        s = _stretched_start(arm, point, pitch, ref)
-        if s is not None:
-            starts.append(s)
-    starts.append(ref)
-    # the atlas configurations nearest the target, from different regions of joint space
-    d = np.linalg.norm(arm.atlas_p - point, axis=1)
-    for k in np.argsort(d)[:_ATLAS_STARTS]:
-        starts.append(arm.atlas_q[k])
-    best = None
-    for q0 in starts:
-        refined = arm.qp.solve(point, q0, pitch=pitch)
-        iterations += refined.iterations
-        if best is None or refined.position_error < best.position_error - 1e-12:
-            best = refined
-    assert best is not None
-    chosen = Branch("numerical", best.q, best.position_error)
-    return _closest_result(arm, point, pitch, chosen, best.pitch_error, iterations, tolerance)
+    q = np.empty(arm.robot.nq)
+    err, perr, its, _ = solve_chain(
+        arm.chain,
+        point,
+        0.0,
+        0.0,
+        ref,
+        arm.robot.neutral,
+        arm.atlas_q,
+        arm.atlas_p,
+        _ATLAS_STARTS,
+        tolerance,
+        PITCH_TOLERANCE,
+        q,
+    )
+    return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
+
+
+def _roll_reach(arm: ArmState) -> float:
+    """How far [m] the wrist roll moves the tool point (0: no roll, or one that does not)."""
+    g = arm.robot.geometry
+    return 0.0 if g is None or g.roll_model is None else g.roll_model.reach
 
 
 def _closest_result(
@@ -319,27 +321,27 @@ def _closest_result(
 
 
 def _solve_numerical(arm: ArmState, point: FloatArray, ref: FloatArray, tolerance: float) -> IKResult:
-    """QP from the seed, the neutral pose and fixed quasi-random starts; the best wins."""
-    robot = arm.robot
-    rng = np.random.default_rng(12345)
-    starts = [ref, robot.neutral, *list(rng.uniform(robot.limits.lower, robot.limits.upper, size=(6, robot.nq)))]
-    best = None
-    iterations = 0
-    for q0 in starts:
-        refined = arm.qp.solve(point, q0)
-        iterations += refined.iterations
-        if best is None or refined.position_error < best.position_error:
-            best = refined
-        if best.position_error <= tolerance:
-            break
-    assert best is not None
-    chosen = Branch("numerical", best.q, best.position_error)
-    if best.position_error <= tolerance:
-        return _result(arm, OK, chosen, [], point, None, iterations, None)
-    reason = (
-        f"no start reached the target within the joint limits: the closest the tool gets is "
-        f"{best.position_error:.6g} m away"
+    """The iteration on the exact chain (:func:`solvers.lm.solve_chain`) from the seed, then from
+    the atlas configurations nearest the target, until one reaches it; else the best."""
+    q = np.empty(arm.robot.nq)
+    err, _, iterations, _ = solve_chain(
+        arm.chain,
+        point,
+        0.0,
+        0.0,
+        ref,
+        arm.robot.neutral,
+        arm.atlas_q,
+        arm.atlas_p,
+        _NUMERICAL_STARTS,
+        tolerance,
+        PITCH_TOLERANCE,
+        q,
     )
+    chosen = Branch("numerical", q, err)
+    if err <= tolerance:
+        return _result(arm, OK, chosen, [], point, None, iterations, None)
+    reason = f"no start reached the target within the joint limits: the closest the tool gets is {err:.6g} m away"
     return _result(arm, UNREACHABLE, chosen, [], point, None, iterations, reason)
 
 

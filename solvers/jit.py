@@ -46,7 +46,9 @@ COMPILED_MODULES = (
     "closest",
     "family",
     "geometric",
+    "kinematics",
     "limits",
+    "lm",
     "pitch",
     "../planning/compiled",
     "../robots/angles",
@@ -180,7 +182,9 @@ else:
         "armd.solvers.closest",
         "armd.solvers.family",
         "armd.solvers.geometric",
+        "armd.solvers.kinematics",
         "armd.solvers.limits",
+        "armd.solvers.lm",
         "armd.solvers.pitch",
         "armd.planning.compiled",
     )
@@ -275,6 +279,32 @@ def parse_signature(signature: str) -> list[tuple[str, int, bool]]:
             continue
         name, _, dims = arg.partition("[")
         out.append((_DTYPES[name], dims.count(",") + 1 if dims else 0, "::1" in dims))
+    return out
+
+
+def numba_types() -> dict[str, Any]:
+    """The registered named tuples as Numba types (C-contiguous arrays), by name: the build's
+    signatures name them."""
+    from numba import types
+
+    scalars = {"f8": types.float64, "i8": types.int64, "b1": types.boolean}
+    out: dict[str, Any] = {}
+
+    def make(name: str) -> Any:
+        if name not in out:
+            cls, fields = TUPLES[name]
+            members = []
+            for _, spec in fields:
+                if isinstance(spec, str):
+                    members.append(make(spec))
+                else:
+                    dtype, ndim = spec
+                    members.append(types.Array(scalars[dtype], ndim, "C") if ndim else scalars[dtype])
+            out[name] = types.NamedTuple(members, cls)
+        return out[name]
+
+    for name in TUPLES:
+        make(name)
     return out
 
 

@@ -1,0 +1,394 @@
+"""armd's one Levenberg-Marquardt iteration, compiled: every step a QP with hard limits.
+
+Seed 004 refines its analytic answer with a Jacobian-transpose iteration. armd instead solves,
+at every step, the QP
+
+    min_dq  1/2 |J dq - e|^2 + w^2/2 (j_pitch dq - e_pitch)^2 + mu/2 |dq|^2
+    s.t.    max(lower - q, -step) <= dq <= min(upper - q, step)       (box limits, trust region)
+            c_lo - C q <= C dq <= c_hi - C q                            (coupled limits)
+
+(:mod:`solvers.activeset`), so that every iterate stays inside every joint limit (hard
+constraints, not penalties); a step is taken only if it lowers the cost (else the damping
+grows and the QP is solved again), so the error never increases, and the iteration converges
+to the target when it is reachable, or to a closest configuration within limits when it is
+not. The damping follows Marquardt (relative to diag(J'J)) with Nielsen's gain-ratio update.
+A QP that fails (a singular step) is retried with more damping, never raised.
+
+One policy, two models of the arm: the closed-form family's formula (:class:`~.arrays.Family`,
+in the family's angles: the closest-point search of an exact family arm) or the URDF's exact
+chain (:class:`~.kinematics.Chain`, the URDF's angles: the numerical IK of any arm, and the
+refinement of an idealised closed form). :func:`solve_chain` is the numerical IK: the
+iteration from the seed and from the atlas configurations nearest the target, the first to
+converge wins.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from armd.robots.types import FloatArray
+
+from .activeset import solve_qp
+from .arrays import Family, family_pitch
+from .geometric import family_fk, wrap_angle
+from .jit import entry, jit
+from .kinematics import Chain, chain_jacobian, chain_pose
+from .limits import limits_ok
+
+MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
+TRIES = 12  # damping increases per step before the iteration gives up (a constrained optimum)
+
+
+@jit
+def family_jacobian(f: Family, q: FloatArray, out: FloatArray) -> None:
+    """d(tool point)/dq [m/rad] of the family's FK into ``out`` (3, n); zero for other joints."""
+    P, J = f.P, f.J
+    py, l1, l2, l3 = P[1], P[3], P[4], P[5]
+    out[:] = 0.0
+    yaw = q[J[0]]
+    p1 = q[J[1]]
+    p2 = p1 + q[J[2]]
+    c0, s0 = math.cos(yaw), math.sin(yaw)
+    du = np.zeros(3)
+    dz = np.zeros(3)
+    s1, c1, s2, c2 = math.sin(p1), math.cos(p1), math.sin(p2), math.cos(p2)
+    s3 = c3 = 0.0
+    if J[3] >= 0:
+        p3 = p2 + q[J[3]]
+        s3, c3 = l3 * math.sin(p3), l3 * math.cos(p3)
+    du[0] = -(l1 * s1 + l2 * s2 + s3)
+    dz[0] = l1 * c1 + l2 * c2 + c3
+    du[1] = -(l2 * s2 + s3)
+    dz[1] = l2 * c2 + c3
+    du[2] = -s3
+    dz[2] = c3
+    u = P[0] + l1 * c1 + l2 * c2 + c3 + P[6]
+    out[0, J[0]] = -s0 * u - c0 * py
+    out[1, J[0]] = c0 * u - s0 * py
+    for k in range(3):
+        j = J[k + 1]
+        if j < 0:
+            continue
+        out[0, j] = c0 * du[k]
+        out[1, j] = s0 * du[k]
+        out[2, j] = dz[k]
+
+
+@jit
+def family_cost(
+    f: Family, q: FloatArray, target: FloatArray, pitch: float, w2: float, p: FloatArray
+) -> tuple[float, float]:
+    """(cost, pitch error) of the family at ``q``: squared distance plus ``w2`` pitch error^2;
+    the tool point into ``p``."""
+    family_fk(f, q, p)
+    e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
+    perr = wrap_angle(pitch - family_pitch(f, q)) if w2 > 0.0 else 0.0
+    return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
+
+
+@jit
+def _evaluate(
+    f: Family,
+    ch: Chain,
+    on_chain: bool,
+    q: FloatArray,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    p: FloatArray,
+    Jac: FloatArray,
+    row: FloatArray,
+    jacobian: bool,
+) -> tuple[float, float]:
+    """(cost, pitch error) at ``q`` on the model the flag picks; with ``jacobian``, the position
+    Jacobian into ``Jac`` and the pitch gradient into ``row``."""
+    if not on_chain:
+        if jacobian:
+            family_jacobian(f, q, Jac)
+        return family_cost(f, q, target, pitch, w2, p)
+    reached = chain_jacobian(ch, q, p, Jac, row) if jacobian else chain_pose(ch, q, p)
+    e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
+    perr = wrap_angle(pitch - reached) if w2 > 0.0 else 0.0
+    return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
+
+
+@jit
+def levenberg_marquardt(
+    f: Family,
+    ch: Chain,
+    on_chain: bool,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    q: FloatArray,
+    max_iter: int,
+    step: float,
+    tol: float,
+) -> tuple[float, float, int]:
+    """From ``q`` (within the model's limits), in place: (position error [m], pitch error [rad],
+    iterations). ``w2 > 0`` adds the pitch task with that weight^2. Stops at ``tol`` (position
+    [m] and pitch [rad]), when no step lowers the cost (a constrained optimum), or when the error
+    no longer moves by 1e-11 m."""
+    if on_chain:
+        lower, upper, C, clo, chi = ch.lower, ch.upper, ch.C, ch.clo, ch.chi
+    else:
+        lower, upper, C, clo, chi = f.lower, f.upper, f.C, f.clo, f.chi
+    n = q.shape[0]
+    p = np.empty(3)
+    Jac = np.empty((3, n))
+    row = np.zeros(n)
+    if not on_chain:  # the family's pitch: the sum of its pitch joints
+        for k in range(1, 4):
+            if f.J[k] >= 0:
+                row[f.J[k]] = 1.0
+    lb = np.empty(n)
+    ub = np.empty(n)
+    kc = C.shape[0]
+    cl = np.empty(kc)
+    cu = np.empty(kc)
+    dq = np.empty(n)
+    qn = np.empty(n)
+    H = np.empty((n, n))
+    Hd = np.empty((n, n))
+    g = np.empty(n)
+    cost, perr = _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True)
+    mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
+    nu = 2.0
+    it = 0
+    while it < max_iter:
+        err = math.sqrt(max(cost - w2 * perr * perr, 0.0))
+        if err <= tol and abs(perr) <= tol:
+            break
+        it += 1
+        e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
+        hmax = 0.0
+        for i in range(n):  # H = J'J (+ w2 r r'), g = -J'e (- w2 perr r): small, by hand
+            g[i] = -(Jac[0, i] * e0 + Jac[1, i] * e1 + Jac[2, i] * e2) - w2 * perr * row[i]
+            for j in range(i, n):
+                v = Jac[0, i] * Jac[0, j] + Jac[1, i] * Jac[1, j] + Jac[2, i] * Jac[2, j] + w2 * row[i] * row[j]
+                H[i, j] = v
+                H[j, i] = v
+            hmax = max(hmax, H[i, i])
+        for i in range(n):
+            lb[i] = max(lower[i] - q[i], -step)
+            ub[i] = min(upper[i] - q[i], step)
+        for r in range(kc):
+            cq = 0.0
+            for i in range(n):
+                cq += C[r, i] * q[i]
+            cl[r] = min(clo[r] + MARGIN - cq, 0.0)
+            cu[r] = max(chi[r] - MARGIN - cq, 0.0)
+        if mu < 0.0:
+            mu = 1e-3 * max(hmax, 1e-12)
+        accepted = False
+        cost_new = cost
+        perr_new = perr
+        for _ in range(TRIES):
+            Hd[:, :] = H
+            for i in range(n):
+                Hd[i, i] += mu
+            if not solve_qp(Hd, g, lb, ub, C, cl, cu, dq):
+                mu *= nu
+                nu *= 2.0
+                continue
+            for i in range(n):
+                qn[i] = min(max(q[i] + dq[i], lower[i]), upper[i])
+            cost_new, perr_new = _evaluate(f, ch, on_chain, qn, target, pitch, w2, p, Jac, row, False)
+            # gain ratio: actual decrease over the decrease the quadratic model predicts
+            predicted = 0.0
+            for i in range(n):
+                hq = 0.0
+                for j in range(n):
+                    hq += H[i, j] * dq[j]
+                predicted -= g[i] * dq[i] + 0.5 * dq[i] * hq
+            within = limits_ok(qn, ch, 0.0) if on_chain else limits_ok(qn, f, 0.0)
+            if cost_new < cost and within:
+                rho = 0.5 * (cost - cost_new) / max(predicted, 1e-300)
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                accepted = True
+                break
+            mu *= nu
+            nu *= 2.0
+        if not accepted:
+            _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, False)
+            break
+        progress = cost - cost_new
+        q[:] = qn
+        cost, perr = cost_new, perr_new
+        # the error no longer moves by 1e-11 m (or the step is nothing): a constrained optimum
+        biggest = 0.0
+        for i in range(n):
+            biggest = max(biggest, abs(dq[i]))
+        if progress <= 2e-11 * math.sqrt(cost) + 1e-24 or biggest < 1e-13:
+            break
+        _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True)
+    return math.sqrt(max(cost - w2 * perr * perr, 0.0)), abs(perr), it
+
+
+@jit
+def no_chain() -> Chain:
+    """An empty chain, for an iteration on the family's formula."""
+    e1 = np.zeros(0)
+    return Chain(
+        np.zeros((0, 4, 4)),
+        np.zeros((0, 3)),
+        np.zeros(0, dtype=np.int64),
+        np.zeros(0, dtype=np.int64),
+        e1,
+        e1,
+        np.eye(4),
+        np.zeros(3),
+        e1,
+        e1,
+        np.zeros((0, 0)),
+        e1,
+        e1,
+        -1,
+        1.0,
+        0.0,
+    )
+
+
+@jit
+def no_family() -> Family:
+    """An empty family, for an iteration on the exact chain."""
+    e1 = np.zeros(0)
+    return Family(np.zeros(8), np.full(4, -1, dtype=np.int64), e1, e1, e1, np.zeros((0, 0)), e1, e1, False, False)
+
+
+@entry("Tuple((f8, f8, i8))(Family, f8[:], f8, f8, f8[:], i8, f8, f8)")
+def refine_family(
+    f: Family, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
+) -> tuple[float, float, int]:
+    """:func:`levenberg_marquardt` on the family's formula (the family's angles and frame)."""
+    return levenberg_marquardt(f, no_chain(), False, target, pitch, w2, q, max_iter, step, tol)
+
+
+@entry("Tuple((f8, f8, i8))(Chain, f8[:], f8, f8, f8[:], i8, f8, f8)")
+def refine_chain(
+    ch: Chain, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
+) -> tuple[float, float, int]:
+    """:func:`levenberg_marquardt` on the exact chain (the URDF's angles, ``base``)."""
+    return levenberg_marquardt(no_family(), ch, True, target, pitch, w2, q, max_iter, step, tol)
+
+
+@jit
+def feasible(ch: Chain, q: FloatArray, inside: FloatArray, out: FloatArray) -> bool:
+    """``q`` clipped into the box, into ``out``; where that breaks a coupled limit, the farthest
+    point toward it from ``inside`` (a configuration within every limit) that keeps them all.
+    False if ``inside`` itself is not within the limits."""
+    n = q.shape[0]
+    for i in range(n):
+        out[i] = min(max(q[i], ch.lower[i]), ch.upper[i])
+    if limits_ok(out, ch, 0.0):
+        return True
+    if not limits_ok(inside, ch, 0.0):
+        return False
+    toward = out.copy()
+    lo, hi = 0.0, 1.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        for i in range(n):
+            out[i] = inside[i] + mid * (toward[i] - inside[i])
+        if limits_ok(out, ch, 0.0):
+            lo = mid
+        else:
+            hi = mid
+    for i in range(n):
+        out[i] = inside[i] + lo * (toward[i] - inside[i])
+    return True
+
+
+@entry("Tuple((f8, f8, i8, i8))(Chain, f8[:], f8, f8, f8[:], f8[:], f8[:, :], f8[:, :], i8, f8, f8, f8[:])")
+def solve_chain(
+    ch: Chain,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    ref: FloatArray,
+    inside: FloatArray,
+    atlas_q: FloatArray,
+    atlas_p: FloatArray,
+    n_atlas: int,
+    tol: float,
+    pitch_tol: float,
+    q_out: FloatArray,
+) -> tuple[float, float, int, int]:
+    """The numerical IK of any arm: :func:`levenberg_marquardt` on the exact chain from the seed
+    ``ref`` (made feasible toward it from ``inside``, a configuration within every limit), then
+    from the ``n_atlas`` atlas configurations whose tool points are nearest the target, until one
+    reaches ``tol`` [m] (and ``pitch_tol`` [rad] with ``w2 > 0``); else the best. Into ``q_out``:
+    (position error, pitch error, iterations, starts used)."""
+    n = ref.shape[0]
+    f = no_family()
+    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
+    dist = np.full(n_atlas, np.inf)
+    for i in range(atlas_p.shape[0]):
+        d = (atlas_p[i, 0] - target[0]) ** 2 + (atlas_p[i, 1] - target[1]) ** 2 + (atlas_p[i, 2] - target[2]) ** 2
+        if d < dist[n_atlas - 1]:
+            k = n_atlas - 1
+            while k > 0 and dist[k - 1] > d:
+                dist[k] = dist[k - 1]
+                order[k] = order[k - 1]
+                k -= 1
+            dist[k] = d
+            order[k] = i
+    q = np.empty(n)
+    best, best_err, best_perr = 1e300, math.inf, math.inf
+    iters = 0
+    used = 0
+    for s in range(n_atlas + 1):
+        if s == 0:
+            if not feasible(ch, ref, inside, q):
+                continue
+        elif order[s - 1] >= 0:
+            q[:] = atlas_q[order[s - 1]]
+        else:
+            continue
+        used += 1
+        err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12)
+        iters += it
+        score = err * err + w2 * perr * perr
+        if score < best:
+            best, best_err, best_perr = score, err, perr
+            q_out[:] = q
+        if err <= tol and (w2 == 0.0 or perr <= pitch_tol):
+            break
+    return best_err, best_perr, iters, used
+
+
+@entry("void(Chain, f8[:, :], i8, f8[:], f8, f8, f8, f8, f8[:], b1[:], i8[:])")
+def refine_branches(
+    ch: Chain,
+    qs: FloatArray,
+    m: int,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    tol: float,
+    pitch_tol: float,
+    errs: FloatArray,
+    kept: NDArray[np.bool_],
+    iterations: NDArray[np.int64],
+) -> None:
+    """The first ``m`` rows of ``qs`` (an idealised closed form's branches, within limits)
+    checked on the exact chain and, where they miss by more than ``tol``, iterated there in
+    place: each row's exact error into ``errs``, whether it now reaches the target (and the
+    pitch ``pitch`` with ``w2 > 0``) into ``kept``, the iterations into ``iterations[0]``."""
+    f = no_family()
+    p = np.empty(3)
+    iterations[0] = 0
+    for r in range(m):
+        q = qs[r]
+        reached = chain_pose(ch, q, p)
+        err = math.sqrt((p[0] - target[0]) ** 2 + (p[1] - target[1]) ** 2 + (p[2] - target[2]) ** 2)
+        perr = abs(wrap_angle(pitch - reached)) if w2 > 0.0 else 0.0
+        if err > tol or perr > pitch_tol:
+            err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12)
+            iterations[0] += it
+        errs[r] = err
+        kept[r] = err <= tol and perr <= pitch_tol
