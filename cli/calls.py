@@ -48,7 +48,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
     target = numbers(args.xyz, "target")
     seed = numbers(args.seed, "seed") if args.seed else None
     with _client(args) as c:
-        r = c.ik(args.robot, target, approach=approach(args.approach), seed=seed)
+        r = c.ik(args.robot, target, approach=approach(args.approach), seed=seed, roll=args.roll)
     _show(
         args,
         r.raw,
@@ -58,6 +58,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
             ("position error [m]", r.position_error),
             ("reached [m]", r.reached),
             ("pitch [rad]", r.pitch),
+            ("roll [rad]", "" if r.roll is None else r.roll),
             ("branch", r.branch),
             ("other branches", len(r.branches)),
             ("reason", r.reason or ""),
@@ -177,6 +178,7 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("robot")
     p.add_argument("xyz", nargs=3, metavar="X/Y/Z", help="target [m] in the arm's base frame")
     p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad]")
+    p.add_argument("--roll", type=float, help="the tool's roll about its axis [rad] (an arm with a wrist roll)")
     p.add_argument("--seed", nargs="+", metavar="Q", help="current joint vector [rad]")
     _client_args(p)
     p.set_defaults(func=cmd_ik)

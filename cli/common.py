@@ -61,7 +61,10 @@ def goal(args: argparse.Namespace) -> object:
         raise BadRequest("give exactly one of --goal Q... (joints) or --target X Y Z", field="goal")
     if args.goal is not None:
         return numbers(args.goal, "goal")
-    return {"target": numbers(args.target, "target"), "approach": approach(args.approach)}
+    out: dict[str, object] = {"target": numbers(args.target, "target"), "approach": approach(args.approach)}
+    if getattr(args, "roll", None) is not None:
+        out["roll"] = args.roll
+    return out
 
 
 def motion_args(p: argparse.ArgumentParser) -> None:
@@ -71,6 +74,7 @@ def motion_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--goal", nargs="+", metavar="Q", help="goal joint vector [rad]")
     p.add_argument("--target", nargs=3, metavar=("X", "Y", "Z"), help="goal tool point [m] in base")
     p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad] (with --target)")
+    p.add_argument("--roll", type=float, help="the tool's roll about its axis [rad] (with --target, a joint path)")
     p.add_argument("--path", choices=["joint", "line"], default="joint")
     p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits, (0, 1]")
 

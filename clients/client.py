@@ -44,6 +44,12 @@ class IKReply:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    @property
+    def roll(self) -> float | None:
+        """The tool's roll about its axis [rad] (None: the arm has no wrist roll)."""
+        value = self.raw.get("roll")
+        return None if value is None else float(value)
+
 
 @dataclass(frozen=True)
 class FKReply:
@@ -214,10 +220,13 @@ class ArmClient:
         seed: Sequence[float] | None = None,
         tolerance: float | None = None,
         quantise: bool = False,
+        roll: float | None = None,
     ) -> IKReply:
         req: dict[str, Any] = {"target": _jsonable(target)}
         if approach is not None:
             req["approach"] = approach
+        if roll is not None:
+            req["roll"] = roll
         if seed is not None:
             req["seed"] = list(seed)
         if tolerance is not None:

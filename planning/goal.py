@@ -13,10 +13,12 @@ from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
 
 @dataclass(frozen=True)
 class CartesianGoal:
-    """A tool point [x, y, z] [m] in ``base`` (or a sensor reading) and an approach."""
+    """A tool point [x, y, z] [m] in ``base`` (or a sensor reading), an approach and a tool roll
+    [rad] (None: the seed's)."""
 
     target: object
     approach: object = None
+    roll: float | None = None
 
 
 def cartesian(goal: object) -> CartesianGoal | None:
@@ -27,7 +29,7 @@ def cartesian(goal: object) -> CartesianGoal | None:
         return CartesianGoal(goal)
     if isinstance(goal, Mapping):
         if "target" in goal:
-            return CartesianGoal(goal["target"], goal.get("approach"))
+            return CartesianGoal(goal["target"], goal.get("approach"), goal.get("roll"))
         if "q" in goal:
             return None
         raise BadRequest("a goal mapping needs 'target' (Cartesian) or 'q' (joints)", field="goal")
@@ -48,7 +50,7 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
         if bad:
             raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=field)
         return robot.limits.clip(qv)
-    r = solve_ik(robot, cg.target, approach=cg.approach, seed=seed)
+    r = solve_ik(robot, cg.target, approach=cg.approach, seed=seed, roll=cg.roll)
     if r.status != "ok":
         raise PlanRejected(f"{field}: {r.reason}", field=field, position_error=r.position_error)
     return r.q
@@ -59,6 +61,7 @@ def goal_point(robot: Robot, goal: object, seed: FloatArray) -> tuple[FloatArray
     cg = cartesian(goal)
     if cg is None:
         q = goal_configuration(robot, goal, seed)
-        g = robot.geometry
-        return robot.fk(q), (robot.tool_pitch(q) if g is not None and g.has_wrist else None)
+        return robot.fk(q), (robot.tool_pitch(q) if robot.chooses_pitch else None)
+    if cg.roll is not None:
+        raise BadRequest("roll is for a joint path: a line keeps the start's roll", field="goal")
     return target_point(robot, cg.target, seed), approach_pitch(robot, cg.approach)

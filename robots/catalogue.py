@@ -23,7 +23,7 @@ import pinocchio as pin
 from armd.errors import RobotFileError, UnknownRobot
 
 from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
-from .chain import recognise
+from .chain import recognise, roll_joint
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .robot import Robot
@@ -243,6 +243,7 @@ class _Builder:
         else:
             found = recognise(model, tool_frame, joint_names, limits, neutral, tool_axis)
             geometry, family_note = found.geometry, found.reason
+        roll = roll_joint(model, tool_frame, joint_names, geometry, tool_axis) if geometry is not None else None
         actuators, gripper = self._actuators(top, index, limits)
         sensors = self._sensors(top, frames)
         controller: dict[str, object] = {}
@@ -268,6 +269,7 @@ class _Builder:
             controller=controller,
             family_note=family_note,
             tool_axis=tool_axis,
+            roll_joint=roll,
         )
 
     def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:

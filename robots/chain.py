@@ -186,6 +186,53 @@ def recognise(
     return Recognised(geometry, shape)
 
 
+@dataclass(frozen=True)
+class RollJoint:
+    """A wrist roll about the tool axis: the tool's roll (:meth:`Robot.tool_roll`) is
+    ``sign q[index] + offset`` [rad]."""
+
+    index: int
+    sign: float
+    offset: float
+
+
+def roll_joint(
+    model: pin.Model, tool_frame: str, joint_names: tuple[str, ...], geometry: Geometry, tool_axis: FloatArray
+) -> RollJoint | None:
+    """The last joint of the chain to the tool when it is outside the family and turns about the
+    tool axis (to 1e-6): the arm's wrist roll, with its sign and offset (measured at q = 0)."""
+    fid = model.getFrameId(tool_frame)
+    j = int(model.frames[fid].parentJoint)
+    if j <= 0 or model.joints[j].shortname() not in _REVOLUTE:
+        return None
+    index = list(joint_names).index(model.names[j]) if model.names[j] in joint_names else -1
+    if index < 0 or index in geometry.joints:
+        return None
+    data = model.createData()
+    q0 = np.zeros(model.nq)
+    pin.computeJointJacobians(model, data, q0)
+    col = np.array(data.J[:, model.joints[j].idx_v])
+    axis = col[3:] / np.linalg.norm(col[3:])
+    rotation = np.array(pin.updateFramePlacement(model, data, fid).rotation)
+    d = rotation @ tool_axis
+    if np.linalg.norm(np.cross(axis, d)) > 1e-6:
+        return None
+    return RollJoint(index, 1.0 if axis @ d > 0 else -1.0, tool_roll(geometry, q0, rotation, tool_axis))
+
+
+def tool_roll(geometry: Geometry, q: FloatArray, rotation: FloatArray, tool_axis: FloatArray) -> float:
+    """The tool's roll [rad] about its axis at ``q`` (tool frame ``rotation`` in base): the angle,
+    about the tool axis, from the arm's vertical plane (the direction in it perpendicular to the
+    tool axis and upward) to the tool frame's z axis (its x axis where z is the tool axis)."""
+    d = rotation @ tool_axis
+    ref = rotation[:, 0] if abs(tool_axis[2]) > 0.5 else rotation[:, 2]
+    h = geometry.heading(q)
+    f = np.array([math.cos(h), math.sin(h), 0.0])
+    pitch = math.atan2(d[2], d @ f)
+    up = -math.sin(pitch) * f + math.cos(pitch) * np.array([0.0, 0.0, 1.0])
+    return math.atan2(float(np.cross(up, ref) @ d), float(up @ ref))
+
+
 def _outward(
     model: pin.Model, fid: int, neutral: FloatArray, chain: list[int], u0: FloatArray, base: FloatArray, v0: FloatArray
 ) -> float:

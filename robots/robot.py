@@ -20,6 +20,7 @@ from armd.errors import BadRequest
 
 from .actuators import ActuatorMap, Gripper
 from .angles import wrap
+from .chain import RollJoint
 from .geometry import Geometry
 from .limits import JointLimits
 from .sensors import RangeSensor
@@ -50,6 +51,8 @@ class Robot:
         family_note: how the arm's chain was read: its shape ("yaw + 3 pitch + roll"), or why
             it is not of the family.
         tool_axis: the tool axis in the tool frame (unit; +x unless robot.toml names another).
+        roll_joint: the wrist roll about the tool axis of a closed-form arm, if it has one: what
+            ``roll`` in an IK request turns.
         sensors: range sensors by name.
         neutral: the rest configuration [rad].
         model: the Pinocchio model built from ``robot.urdf`` (mimic joints resolved).
@@ -74,6 +77,7 @@ class Robot:
         controller: dict[str, object],
         family_note: str = "",
         tool_axis: FloatArray | None = None,
+        roll_joint: RollJoint | None = None,
     ) -> None:
         self.name = name
         self.title = title
@@ -91,6 +95,7 @@ class Robot:
         self.neutral = neutral
         self.controller = controller
         self.family_note = family_note
+        self.roll_joint = roll_joint
         self.tool_axis = np.array([1.0, 0.0, 0.0]) if tool_axis is None else np.asarray(tool_axis, dtype=float)
         # state the layers above derive from the arm, made once and kept with it (the solver's arrays)
         self.derived: dict[str, object] = {}
@@ -102,6 +107,19 @@ class Robot:
     @property
     def nq(self) -> int:
         return len(self.joint_names)
+
+    @property
+    def chooses_pitch(self) -> bool:
+        """Whether the arm can choose its tool pitch at a point: a wrist pitch joint in its closed
+        form, or (outside the family) four or more joints moving the tool."""
+        if self.geometry is not None:
+            return self.geometry.has_wrist
+        count = 0
+        j = int(self.model.frames[self.tool_frame_id].parentJoint)
+        while j > 0:
+            count += self.model.joints[j].nq
+            j = int(self.model.parents[j])
+        return count >= 4
 
     # -- input checking ----------------------------------------------------------------
 
@@ -168,6 +186,39 @@ class Robot:
             return wrap(math.atan2(d[2], math.hypot(d[0], d[1])))
         heading = self.geometry.heading(q)
         return wrap(math.atan2(d[2], d[0] * math.cos(heading) + d[1] * math.sin(heading)))
+
+    def tool_roll(self, q: Sequence[float] | FloatArray) -> float | None:
+        """The tool's roll [rad] about its axis, in [-pi, pi) (None: no wrist roll): 0 when the tool
+        frame's z axis (x where z is the tool axis) lies in the arm's vertical plane, upward;
+        positive turning about the tool axis. ``sign q[roll] + offset``: the pitch and the yaw
+        do not change it."""
+        rj = self.roll_joint
+        if rj is None:
+            return None
+        return wrap(rj.sign * float(q[rj.index]) + rj.offset)
+
+    def roll_angle(self, roll: float, seed: FloatArray) -> float:
+        """The wrist roll joint's angle [rad] for the tool roll ``roll``, within its limits
+        (the turn nearest ``seed``'s); :class:`BadRequest` when the arm has no roll or the joint
+        cannot reach it."""
+        rj = self.roll_joint
+        if rj is None:
+            raise BadRequest(f"{self.name} has no wrist roll about its tool axis: roll cannot be asked", field="roll")
+        if isinstance(roll, bool) or not isinstance(roll, (int, float)) or not -math.pi <= roll <= math.pi:
+            raise BadRequest(f"roll must be a number in [-pi, pi] rad, got {roll!r}", field="roll")
+        value = rj.sign * (roll - rj.offset)
+        lo, hi = float(self.limits.lower[rj.index]), float(self.limits.upper[rj.index])
+        turns = [value + 2.0 * math.pi * k for k in range(-3, 4)]
+        inside = [v for v in turns if lo - 1e-12 <= v <= hi + 1e-12]
+        if not inside:
+            name = self.joint_names[rj.index]
+            raise BadRequest(
+                f"roll {roll:.4f} rad needs joint {name!r} at {wrap(value):.4f} rad, outside its limits "
+                f"[{lo:.4f}, {hi:.4f}]",
+                field="roll",
+            )
+        best = min(inside, key=lambda v: abs(v - float(seed[rj.index])))
+        return min(max(best, lo), hi)
 
     def jacobian(self, q: Sequence[float] | FloatArray) -> FloatArray:
         """Jacobian of the tool point [m/rad], shape (3, nq), in ``base`` axes."""
@@ -282,6 +333,6 @@ class Robot:
             ],
             "sensors": sorted(self.sensors),
             "neutral": self.neutral.tolist(),
-            "wrist": bool(self.geometry and self.geometry.has_wrist),
+            "wrist": self.chooses_pitch,
             "tool_pitch": "level" if self.geometry and self.geometry.level else "joints",
         }

@@ -120,6 +120,7 @@ class Handlers:
             seed=req.get("seed"),
             tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
             quantise=req.get("quantise", False),
+            roll=req.get("roll"),
         ).to_dict()
 
     def plan(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:

@@ -459,10 +459,11 @@ GOAL = Either(
     {
         "list": JOINTS,
         "object": Obj(
-            {"target": TARGET, "approach": APPROACH, "q": JOINTS},
+            {"target": TARGET, "approach": APPROACH, "roll": PITCH, "q": JOINTS},
             exclusive=(
                 ("target", "q", "a goal is a Cartesian target or a joint vector"),
                 ("q", "approach", "an approach is for a Cartesian target"),
+                ("q", "roll", "a roll is for a Cartesian target"),
             ),
             one_of=("target", "q"),
             what='a goal {"target", "approach"} or {"q"}',
@@ -498,7 +499,15 @@ FK = Obj({"q": JOINTS}, required=(("q", "the joint vector [rad]"),), top=True)
 # (ik: the handler picks IK_ONE or IK_BATCH by which of target and targets is there, and refuses
 # both; the other one is named in each so that it may be given as null, which is absent)
 IK_ONE = Obj(
-    {"target": TARGET, "approach": APPROACH, "seed": JOINTS, "tolerance": Num("m"), "quantise": Flag(), "targets": ANY},
+    {
+        "target": TARGET,
+        "approach": APPROACH,
+        "roll": PITCH,
+        "seed": JOINTS,
+        "tolerance": Num("m"),
+        "quantise": Flag(),
+        "targets": ANY,
+    },
     required=(("target", "[x, y, z] in metres, or a sensor reading (or 'targets', a batch)"),),
     top=True,
 )

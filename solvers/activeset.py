@@ -83,6 +83,20 @@ def _gauss(K: FloatArray, r: FloatArray, out: FloatArray) -> bool:
 
 
 @jit
+def _inside(x: FloatArray, lb: FloatArray, ub: FloatArray, C: FloatArray, cl: FloatArray, cu: FloatArray) -> bool:
+    for i in range(x.shape[0]):
+        if x[i] < lb[i] or x[i] > ub[i]:
+            return False
+    for r in range(C.shape[0]):
+        v = 0.0
+        for i in range(x.shape[0]):
+            v += C[r, i] * x[i]
+        if v < cl[r] or v > cu[r]:
+            return False
+    return True
+
+
+@jit
 def solve_qp(
     H: FloatArray,
     g: FloatArray,
@@ -93,8 +107,15 @@ def solve_qp(
     cu: FloatArray,
     x: FloatArray,
 ) -> bool:
-    """Solve into ``x`` (n,), starting from x = 0 (which must be feasible). True on success."""
+    """Solve into ``x`` (n,), starting from x = 0 (which must be feasible). True on success.
+
+    First the unconstrained minimiser: where it keeps every bound (most steps of an iteration
+    that is not pressed against a limit) it is the answer, and no working set is built."""
     n = H.shape[0]
+    K0 = H.copy()
+    r0 = -g
+    if _gauss(K0, r0, x) and _inside(x, lb, ub, C, cl, cu):
+        return True
     m = 2 * n + 2 * C.shape[0]
     A = np.empty((m, n))
     b = np.empty(m)

@@ -178,7 +178,10 @@ def solve_ik_batch(
         for i in range(m):
             if check is not None:
                 check()
-            _store(i, _solve_numerical(arm, pts[i], refs[i], tolerance), status, branch, q, err, reached, pitch_out)
+            p_i = float(pitches[i]) if per_target else pitch
+            _store(
+                i, _solve_numerical(arm, pts[i], p_i, refs[i], tolerance), status, branch, q, err, reached, pitch_out
+            )
         return BatchIKResult(status, q, err, reached, pitch_out, branch)
 
     if per_target:

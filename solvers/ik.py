@@ -40,6 +40,7 @@ from .analytic import EXACT, NONE, solve_point
 from .arm import ArmState, arm_state
 from .closest import closest_family
 from .geometric import BRANCH_NAMES, arm_pose
+from .kinematics import pose as chain_pose
 from .lm import refine_branches, refine_chain, solve_chain
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
@@ -51,6 +52,7 @@ FREE_PITCHES = np.array([PARALLEL, PERPENDICULAR])  # the free-pitch preference,
 _ATLAS_STARTS = 3  # closest-point starts from the atlas (after the seed)
 _NUMERICAL_STARTS = 8  # numerical IK starts from the atlas (after the seed)
 _NEAR = 1e-3  # [m] an idealised closed form's closest point this near: the numerical IK tries too
+_NEAR_PITCH = 1e-4  # [rad] an idealised closed form's nearest pitch this near the asked one: it is tried
 _PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
 
 
@@ -62,6 +64,7 @@ def solve_ik(
     seed: Sequence[float] | FloatArray | None = None,
     tolerance: float = DEFAULT_TOLERANCE,
     quantise: bool = False,
+    roll: float | None = None,
 ) -> IKResult:
     """Joint vector that puts ``robot``'s tool point on ``target``, within every limit.
 
@@ -74,12 +77,20 @@ def solve_ik(
         tolerance: position error [m] under which the answer is ``ok``.
         quantise: answer in whole actuator steps (stepper micro-steps), reporting the
             error quantisation leaves (status ``approximate`` when it exceeds ``tolerance``).
+        roll: the tool's roll about its axis [rad] (:meth:`Robot.tool_roll`; an arm with a
+            wrist roll): held through the solve. Without it the seed's roll is kept, and changed
+            only where the target is out of reach with it.
 
     Raises:
-        BadRequest: malformed target, approach, seed or tolerance (nothing is solved).
+        BadRequest: malformed target, approach, seed, tolerance or roll (nothing is solved).
     """
     arm = arm_state(robot)
     ref = robot.neutral if seed is None else robot.joint_vector(seed, "seed")
+    if roll is not None:
+        angle = robot.roll_angle(roll, ref)  # (BadRequest on an arm without a wrist roll)
+        assert robot.roll_joint is not None
+        ref = ref.copy()
+        ref[robot.roll_joint.index] = angle
     point = target_point(robot, target, ref)
     pitch = approach_pitch(robot, approach)
     if type(tolerance) is float and 0.0 < tolerance <= MAX_TOLERANCE:
@@ -89,11 +100,13 @@ def solve_ik(
     ):
         raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
     if arm.arrays is None:
-        result = _solve_numerical(arm, point, ref, tolerance)
+        result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
-        result = _solve_family(arm, point, pitch, ref, tolerance)
+        result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
     if quantise:
         result = _quantise(arm, result, tolerance)
+    if robot.roll_joint is not None:
+        result = result._replace(roll=robot.tool_roll(result.q))
     return result
 
 
@@ -107,11 +120,11 @@ def _dist(a: FloatArray, b: FloatArray) -> float:
 
 def _pose(arm: ArmState, q: FloatArray) -> tuple[FloatArray, float]:
     """Tool point [m] and pitch [rad] at ``q`` on the exact model: the family's formula where
-    it is the URDF's FK (checked against Pinocchio when the arm was first seen), else Pinocchio."""
-    if arm.arrays is None or not arm.exact:
-        pose = arm.robot.pose(q)
-        return pose.position, pose.pitch
+    it is the URDF's FK (checked against Pinocchio when the arm was first seen), else the URDF's
+    chain (solvers.kinematics)."""
     reached = np.empty(3)
+    if arm.arrays is None or not arm.exact:
+        return reached, wrap(chain_pose(arm.chain, q, reached))  # (the exact chain, compiled)
     pitch = arm_pose(arm.arrays, q, reached)
     return reached, wrap(pitch)
 
@@ -160,13 +173,15 @@ def _refined(
     return found, int(its[0])
 
 
-def _solve_family(arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float) -> IKResult:
+def _solve_family(
+    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, free_roll: bool = True
+) -> IKResult:
     assert arm.arrays is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
     if code == NONE:
-        return _closest(arm, point, pitch, ref, tolerance, 0)
+        return _closest(arm, point, pitch, ref, tolerance, 0, free_roll)
     if code == EXACT or pitch is None:
         status, reason = OK, None
     else:
@@ -201,14 +216,28 @@ def _solve_family(arm: ArmState, point: FloatArray, pitch: float | None, ref: Fl
     # asked pitch (a free one was only the closed form's preference: the position alone counts)
     rows = [(names[r], qs[r], errs[r]) for r in range(m)]
     has_wrist = arm.robot.geometry is not None and arm.robot.geometry.has_wrist
-    found, iterations = _refined(arm, rows, point, phi if has_wrist and pitch is not None else None, tolerance)
+    # the idealised form's nearest pitch a hair off the asked one: the URDF may reach the asked one
+    retry = not arm.exact and status == APPROXIMATE and pitch is not None and abs(wrap(phi - pitch)) < _NEAR_PITCH
+    aim = pitch if retry else phi
+    found, iterations = _refined(arm, rows, point, aim if has_wrist and pitch is not None else None, tolerance)
+    if found and retry:
+        status, reason = OK, None
+    if not found and retry:  # it does not: the nearest pitch, as the closed form said
+        found, more = _refined(arm, rows, point, phi, tolerance)
+        iterations += more
     if not found:
-        return _closest(arm, point, pitch, ref, tolerance, iterations)
+        return _closest(arm, point, pitch, ref, tolerance, iterations, free_roll)
     return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
 
 
 def _closest(
-    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, iterations: int
+    arm: ArmState,
+    point: FloatArray,
+    pitch: float | None,
+    ref: FloatArray,
+    tolerance: float,
+    iterations: int,
+    free_roll: bool = True,
 ) -> IKResult:
     """The configuration within limits whose tool point is nearest ``point``: on the family's
     formula (then, where it is an idealisation of the URDF, iterated on the exact chain from
@@ -242,7 +271,7 @@ def _closest(
                 if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
                     q, err, perr = near, e2, p2
         g = arm.robot.geometry
-        if tolerance < err <= _roll_reach(arm) and g is not None and g.roll is not None:
+        if free_roll and tolerance < err <= _roll_reach(arm) and g is not None and g.roll is not None:
             # the closed form held the wrist roll at the seed's, and the roll moves the tool by
             # as much as is missing: the numerical IK with the roll free, from here and the atlas
             free = np.empty(arm.robot.nq)
@@ -265,11 +294,12 @@ def _closest(
                 q, err, perr = free, e2, p2
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     q = np.empty(arm.robot.nq)
+    w2 = 0.0 if pitch is None or not arm.robot.chooses_pitch else _PITCH_WEIGHT**2
     err, perr, its, _ = solve_chain(
         arm.chain,
         point,
-        0.0,
-        0.0,
+        0.0 if pitch is None else pitch,
+        w2,
         ref,
         arm.robot.neutral,
         arm.atlas_q,
@@ -320,15 +350,19 @@ def _closest_result(
 # -- arms outside the family -------------------------------------------------------------
 
 
-def _solve_numerical(arm: ArmState, point: FloatArray, ref: FloatArray, tolerance: float) -> IKResult:
+def _solve_numerical(
+    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
+) -> IKResult:
     """The iteration on the exact chain (:func:`solvers.lm.solve_chain`) from the seed, then from
-    the atlas configurations nearest the target, until one reaches it; else the best."""
+    the atlas configurations nearest the target, until one reaches it (with the asked pitch);
+    else the best."""
     q = np.empty(arm.robot.nq)
-    err, _, iterations, _ = solve_chain(
+    w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
+    err, perr, iterations, _ = solve_chain(
         arm.chain,
         point,
-        0.0,
-        0.0,
+        0.0 if pitch is None else pitch,
+        w2,
         ref,
         arm.robot.neutral,
         arm.atlas_q,
@@ -338,11 +372,28 @@ def _solve_numerical(arm: ArmState, point: FloatArray, ref: FloatArray, toleranc
         PITCH_TOLERANCE,
         q,
     )
-    chosen = Branch("numerical", q, err)
-    if err <= tolerance:
-        return _result(arm, OK, chosen, [], point, None, iterations, None)
-    reason = f"no start reached the target within the joint limits: the closest the tool gets is {err:.6g} m away"
-    return _result(arm, UNREACHABLE, chosen, [], point, None, iterations, reason)
+    if pitch is not None and err > tolerance:
+        # not met with the pitch: the target may still be reached at another (then "approximate")
+        free = np.empty(arm.robot.nq)
+        e2, _, more, _ = solve_chain(
+            arm.chain,
+            point,
+            0.0,
+            0.0,
+            q,
+            arm.robot.neutral,
+            arm.atlas_q,
+            arm.atlas_p,
+            _NUMERICAL_STARTS,
+            tolerance,
+            PITCH_TOLERANCE,
+            free,
+        )
+        iterations += more
+        if e2 <= tolerance or e2 < err:
+            q, err = free, e2
+            perr = abs(wrap(arm.robot.tool_pitch(q) - pitch))
+    return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations, tolerance)
 
 
 # -- whole actuator steps ----------------------------------------------------------------------

@@ -17,7 +17,6 @@ from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
 
-from .arrays import rotate
 from .jit import entry, jit, register_tuples
 
 IntArray = NDArray[np.int64]
@@ -66,54 +65,49 @@ register_tuples({"Chain": Chain}, {"Chain": CHAIN_FIELDS})
 
 
 @jit
-def _times(R: FloatArray, M: FloatArray, out: FloatArray) -> None:
-    """``out`` = R (3, 3) times M's rotation (M (4, 4))."""
-    for i in range(3):
-        for j in range(3):
-            out[i, j] = R[i, 0] * M[0, j] + R[i, 1] * M[1, j] + R[i, 2] * M[2, j]
-
-
-@jit
 def chain_frames(ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray, T: FloatArray) -> None:
     """Each joint's origin and axis in base (rows of ``origins``, ``axes``: (k, 3)) and the tool
-    frame's placement ``T`` (4, 4) at ``q``."""
-    R = np.eye(3)
-    Rn = np.empty((3, 3))
-    p = np.zeros(3)
-    step = np.empty(3)
-    v = np.empty(3)
+    frame's placement ``T`` (4, 4) at ``q``. ``T`` carries the running placement."""
+    for i in range(4):
+        for j in range(4):
+            T[i, j] = 1.0 if i == j else 0.0
+    A = np.empty((3, 3))
     for k in range(ch.axis.shape[0]):
-        M = ch.placement[k]
-        # p, R = (p, R) * M
-        for i in range(3):
-            v[i] = R[i, 0] * M[0, 3] + R[i, 1] * M[1, 3] + R[i, 2] * M[2, 3]
-        for i in range(3):
-            p[i] += v[i]
-        _times(R, M, Rn)
-        R[:, :] = Rn
+        _compose(T, ch.placement[k], A)
         a = ch.axis[k]
         for i in range(3):
-            axes[k, i] = R[i, 0] * a[0] + R[i, 1] * a[1] + R[i, 2] * a[2]
-            origins[k, i] = p[i]
+            axes[k, i] = T[i, 0] * a[0] + T[i, 1] * a[1] + T[i, 2] * a[2]
+            origins[k, i] = T[i, 3]
         value = ch.scale[k] * q[ch.coordinate[k]] + ch.offset[k]
         if ch.prismatic[k] == 1:
             for i in range(3):
-                p[i] += axes[k, i] * value
-        else:  # R = R * rot(a, value): each column of R turned about the world axis
-            w = axes[k]
-            for c in range(3):
-                for i in range(3):
-                    step[i] = R[i, c]
-                rotate(w, value, step, v)
-                for i in range(3):
-                    R[i, c] = v[i]
-    M = ch.tool
+                T[i, 3] += axes[k, i] * value
+        else:  # T's rotation times the turn about the local axis a (Rodrigues)
+            c, s = math.cos(value), math.sin(value)
+            t = 1.0 - c
+            x, y, z = a[0], a[1], a[2]
+            K00, K01, K02 = c + x * x * t, x * y * t - z * s, x * z * t + y * s
+            K10, K11, K12 = y * x * t + z * s, c + y * y * t, y * z * t - x * s
+            K20, K21, K22 = z * x * t - y * s, z * y * t + x * s, c + z * z * t
+            for i in range(3):
+                r0, r1, r2 = T[i, 0], T[i, 1], T[i, 2]
+                T[i, 0] = r0 * K00 + r1 * K10 + r2 * K20
+                T[i, 1] = r0 * K01 + r1 * K11 + r2 * K21
+                T[i, 2] = r0 * K02 + r1 * K12 + r2 * K22
+    _compose(T, ch.tool, A)
+
+
+@jit
+def _compose(T: FloatArray, M: FloatArray, A: FloatArray) -> None:
+    """``T`` = T M in place (both rigid placements, 4 x 4); ``A`` (3, 3) is scratch."""
     for i in range(3):
-        T[i, 3] = p[i] + R[i, 0] * M[0, 3] + R[i, 1] * M[1, 3] + R[i, 2] * M[2, 3]
-    _times(R, M, Rn)
-    T[:3, :3] = Rn
-    T[3, :3] = 0.0
-    T[3, 3] = 1.0
+        T[i, 3] += T[i, 0] * M[0, 3] + T[i, 1] * M[1, 3] + T[i, 2] * M[2, 3]
+    for i in range(3):
+        for j in range(3):
+            A[i, j] = T[i, 0] * M[0, j] + T[i, 1] * M[1, j] + T[i, 2] * M[2, j]
+    for i in range(3):
+        for j in range(3):
+            T[i, j] = A[i, j]
 
 
 @jit

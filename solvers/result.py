@@ -44,6 +44,8 @@ class IKResult(NamedTuple):
         branches: every other valid branch, nearest to the seed first.
         iterations: QP refinement iterations used (0: the closed form was exact).
         reason: why the status is not ``ok``; None when it is.
+        roll: the tool's roll [rad] about its axis at ``q`` (:meth:`Robot.tool_roll`); None for
+            an arm without a wrist roll.
     """
 
     status: str
@@ -57,6 +59,7 @@ class IKResult(NamedTuple):
     branches: tuple[Branch, ...] = ()
     iterations: int = 0
     reason: str | None = None
+    roll: float | None = None
 
     @property
     def ok(self) -> bool:
@@ -76,4 +79,5 @@ class IKResult(NamedTuple):
             "branches": [b.to_dict() for b in self.branches],
             "iterations": self.iterations,
             "reason": self.reason,
+            "roll": self.roll,
         }

@@ -75,8 +75,9 @@ def target_point(robot: Robot, target: object, q: FloatArray | None = None) -> F
 def approach_pitch(robot: Robot, approach: object) -> float | None:
     """The tool pitch [rad] an approach asks for, or None when the pitch is free.
 
-    An arm without a wrist cannot choose its pitch: it accepts ``"free"``/None, and an arm
-    whose tool is held level by a linkage also accepts ``"parallel"`` (always true for it).
+    An arm without a wrist (:attr:`Robot.chooses_pitch`) cannot choose its pitch: it accepts
+    ``"free"``/None, and an arm whose tool is held level by a linkage also accepts
+    ``"parallel"`` (always true for it).
     """
     if approach is None or approach == "free":
         return None
@@ -101,7 +102,7 @@ def approach_pitch(robot: Robot, approach: object) -> float | None:
                 field="approach",
             )
         return None
-    if geom is None or not geom.has_wrist:
+    if not robot.chooses_pitch:
         raise BadRequest(
             f"{robot.name} has no wrist: its tool pitch follows from the position; use approach 'free'",
             field="approach",

@@ -1,0 +1,85 @@
+"""The tool's roll (seed 000's wrist rotate: the gripper opening one way or the other): what
+Robot.tool_roll reports, and `roll` in solve_ik, the protocol's ik and goals, and the client,
+on the insomniac (a roll on the tool axis) and the so101 (a roll that moves the tool point)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from armd import robots
+from armd.clients import ArmClient
+from armd.errors import BadRequest, ServiceError
+from armd.robots.chain import tool_roll
+from armd.solvers import solve_ik
+
+
+def _wrapped(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+@pytest.mark.parametrize("name", ["insomniac", "so101"])
+def test_the_roll_is_the_tools_angle_about_its_axis_from_the_arms_plane(name: str) -> None:
+    """sign q[roll] + offset is the geometric definition at every pose: the pitch and the yaw do
+    not change it."""
+    arm = robots.load(name)
+    assert arm.roll_joint is not None and arm.geometry is not None
+    rng = np.random.default_rng(1)
+    for q in rng.uniform(arm.limits.lower, arm.limits.upper, size=(300, arm.nq)):
+        rotation = np.array(arm._tool_placement(q).rotation)
+        full = tool_roll(arm.geometry, q, rotation, arm.tool_axis)
+        assert abs(_wrapped(full - (arm.tool_roll(q) or 0.0))) < 1e-12
+
+
+@pytest.mark.parametrize("name", ["insomniac", "so101"])
+def test_an_asked_roll_is_held_and_the_target_met(name: str) -> None:
+    arm = robots.load(name)
+    rng = np.random.default_rng(2)
+    done = 0
+    for q in rng.uniform(arm.limits.lower, arm.limits.upper, size=(300, arm.nq)):
+        roll = arm.tool_roll(q)
+        assert roll is not None
+        r = solve_ik(arm, arm.fk(q), roll=roll)  # the seed's roll (neutral) is another one
+        assert r.status == "ok", (q.tolist(), r.reason)
+        assert r.roll is not None and abs(_wrapped(r.roll - roll)) < 1e-9
+        assert abs(_wrapped((arm.tool_roll(r.q) or 0.0) - roll)) < 1e-9 and r.position_error < 1e-9
+        done += 1
+    assert done == 300
+
+
+def test_without_a_roll_the_seeds_is_kept() -> None:
+    arm = robots.load("so101")
+    seed = arm.neutral.copy()
+    seed[4] = 1.2
+    r = solve_ik(arm, arm.fk(seed), seed=seed)
+    assert r.status == "ok" and r.q[4] == pytest.approx(1.2) and r.roll == pytest.approx(arm.tool_roll(seed))
+
+
+def test_a_roll_the_arm_cannot_take_is_refused() -> None:
+    with pytest.raises(BadRequest, match="no wrist roll") as e:
+        solve_ik(robots.load("gupta3"), [0.2, 0.0, 0.1], roll=0.3)
+    assert e.value.field == "roll"
+    so101 = robots.load("so101")  # wrist_roll reaches +-2.79 rad: a roll of pi is beyond it
+    with pytest.raises(BadRequest, match="outside its limits") as e:
+        solve_ik(so101, so101.fk(so101.neutral), roll=math.pi)
+    assert e.value.field == "roll"
+    with pytest.raises(BadRequest, match=r"\[-pi, pi\]"):
+        solve_ik(so101, so101.fk(so101.neutral), roll=4.0)
+
+
+def test_roll_over_the_service(client: ArmClient) -> None:
+    arm = robots.load("insomniac")
+    target = arm.fk(arm.neutral) + np.array([0.0, 0.02, -0.03])
+    r = client.ik("insomniac", target.tolist(), roll=0.7)
+    assert r.ok and r.roll == pytest.approx(0.7, abs=1e-9) and r.raw["roll"] == pytest.approx(0.7, abs=1e-9)
+    assert client.ik("gupta3", [0.2, 0.0, 0.1]).roll is None
+    plan = client.plan("insomniac", {"target": target.tolist(), "roll": -0.5})
+    assert arm.tool_roll(np.array(plan.position[-1])) == pytest.approx(-0.5, abs=1e-6)
+    with pytest.raises(ServiceError) as e:
+        client.plan("insomniac", {"target": target.tolist(), "roll": -0.5}, path="line")
+    assert e.value.code == "bad_request" and "line keeps the start's roll" in str(e.value)
+    with pytest.raises(ServiceError) as e:
+        client.ik("gupta3", [0.2, 0.0, 0.1], roll=0.3)
+    assert e.value.code == "bad_request" and e.value.field == "roll"
