@@ -738,7 +738,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def load_arm(name: str) -> Any:
     """A catalogue arm by name, or an arm's folder by path."""
-    return robots.load(name) if name in robots.names() else robots.load_folder(name)
+    return robots.load(name) if name in robots.names() else robots.load_folder(Path(name).resolve())
 
 
 def git_state() -> dict[str, Any]:

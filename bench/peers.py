@@ -233,7 +233,8 @@ class Armd(Adapter):
         self._solve = solve_ik
 
     def call(self, prepared: Any, seed: FloatArray) -> Any:
-        return self._solve(self.robot, prepared, seed=seed)
+        # the benchmark's tolerance, as rtb is given it (armd's default is 1e-9 m)
+        return self._solve(self.robot, prepared, seed=seed, tolerance=self.tolerance)
 
     def answer(self, raw: Any, seed: FloatArray) -> Answer:
         q = None if raw.q is None else np.asarray(raw.q, dtype=np.float64)

@@ -97,6 +97,81 @@ def _inside(x: FloatArray, lb: FloatArray, ub: FloatArray, C: FloatArray, cl: Fl
 
 
 @jit
+def _solve_box(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, x: FloatArray) -> bool:
+    """:func:`solve_qp` with box bounds only: the same primal active-set method from x = 0, its
+    working set the variables held at a bound, each step a solve in the free ones alone."""
+    n = H.shape[0]
+    at = np.zeros(n, dtype=np.int64)  # 0 free, -1 at its lower bound, +1 at its upper
+    x[:] = 0.0
+    K = np.empty((n, n))
+    r = np.empty(n)
+    sol = np.empty(n)
+    free = np.empty(n, dtype=np.int64)
+    target = np.empty(n)
+    for _ in range(4 * n + 20):
+        nf = 0
+        for i in range(n):
+            if at[i] == 0:
+                free[nf] = i
+                nf += 1
+        # the minimiser over the free variables, the others where they are
+        for a in range(nf):
+            i = free[a]
+            acc = -g[i]
+            for j in range(n):
+                if at[j] != 0:
+                    acc -= H[i, j] * x[j]
+            r[a] = acc
+            for b in range(nf):
+                K[a, b] = H[i, free[b]]
+        if nf > 0 and not _gauss(K[:nf, :nf], r[:nf], sol[:nf]):
+            return False
+        for i in range(n):
+            target[i] = x[i]
+        for a in range(nf):
+            target[free[a]] = sol[a]
+        # step toward it, stopping at the first bound in the way
+        alpha = 1.0
+        block = -1
+        for a in range(nf):
+            i = free[a]
+            d = target[i] - x[i]
+            if d > 1e-15 and x[i] + d > ub[i]:
+                t = (ub[i] - x[i]) / d
+                if t < alpha:
+                    alpha, block = max(t, 0.0), i
+            elif d < -1e-15 and x[i] + d < lb[i]:
+                t = (lb[i] - x[i]) / d
+                if t < alpha:
+                    alpha, block = max(t, 0.0), i
+        for a in range(nf):
+            i = free[a]
+            step = alpha * (target[i] - x[i])
+            x[i] += step
+        if block >= 0:
+            x[block] = ub[block] if target[block] > x[block] else lb[block]
+            at[block] = 1 if abs(x[block] - ub[block]) <= abs(x[block] - lb[block]) else -1
+            continue
+        # at the minimiser of this working set: release a held variable whose gradient pulls it inside
+        worst = -1
+        most = 1e-14
+        for i in range(n):
+            if at[i] == 0:
+                continue
+            grad = g[i]
+            for j in range(n):
+                grad += H[i, j] * x[j]
+            gain = grad if at[i] == 1 else -grad  # > 0: the cost falls moving off the bound
+            if gain > most:
+                most = gain
+                worst = i
+        if worst < 0:
+            return True
+        at[worst] = 0
+    return False
+
+
+@jit
 def solve_qp(
     H: FloatArray,
     g: FloatArray,
@@ -116,6 +191,8 @@ def solve_qp(
     r0 = -g
     if _gauss(K0, r0, x) and _inside(x, lb, ub, C, cl, cu):
         return True
+    if C.shape[0] == 0:
+        return _solve_box(H, g, lb, ub, x)
     m = 2 * n + 2 * C.shape[0]
     A = np.empty((m, n))
     b = np.empty(m)

@@ -138,9 +138,11 @@ def _result(
     asked_pitch: float | None,
     iterations: int,
     reason: str | None,
+    pose: tuple[FloatArray, float] | None = None,
 ) -> IKResult:
-    """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the check)."""
-    reached, pitch = _pose(arm, chosen.q)
+    """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the
+    check; ``pose`` where the caller has it already)."""
+    reached, pitch = _pose(arm, chosen.q) if pose is None else pose
     pitch_error = None if asked_pitch is None else wrap(pitch - asked_pitch)
     return IKResult(
         status=status,
@@ -253,7 +255,7 @@ def _closest(
             its += its2
             if tolerance < err <= _NEAR:  # the idealised closed form may say no where the URDF reaches
                 near = np.empty(arm.robot.nq)
-                e2, p2, its2, _ = solve_chain(
+                e2, p2, its2, _, _ = solve_chain(
                     arm.chain,
                     point,
                     aim,
@@ -266,6 +268,7 @@ def _closest(
                     tolerance,
                     PITCH_TOLERANCE,
                     near,
+                    np.empty(3),
                 )
                 its += its2
                 if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
@@ -275,7 +278,7 @@ def _closest(
             # the closed form held the wrist roll at the seed's, and the roll moves the tool by
             # as much as is missing: the numerical IK with the roll free, from here and the atlas
             free = np.empty(arm.robot.nq)
-            e2, p2, its2, _ = solve_chain(
+            e2, p2, its2, _, _ = solve_chain(
                 arm.chain,
                 point,
                 0.0 if pitch is None else pitch,
@@ -288,6 +291,7 @@ def _closest(
                 tolerance,
                 PITCH_TOLERANCE,
                 free,
+                np.empty(3),
             )
             its += its2
             if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
@@ -295,7 +299,7 @@ def _closest(
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     q = np.empty(arm.robot.nq)
     w2 = 0.0 if pitch is None or not arm.robot.chooses_pitch else _PITCH_WEIGHT**2
-    err, perr, its, _ = solve_chain(
+    err, perr, its, _, _ = solve_chain(
         arm.chain,
         point,
         0.0 if pitch is None else pitch,
@@ -308,6 +312,7 @@ def _closest(
         tolerance,
         PITCH_TOLERANCE,
         q,
+        np.empty(3),
     )
     return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
 
@@ -326,6 +331,7 @@ def _closest_result(
     pitch_error: float,
     iterations: int,
     tolerance: float,
+    pose: tuple[FloatArray, float] | None = None,
 ) -> IKResult:
     if chosen.position_error <= tolerance:
         if pitch is not None and pitch_error > PITCH_TOLERANCE:
@@ -338,13 +344,14 @@ def _closest_result(
                 pitch,
                 iterations,
                 "the asked pitch is not reachable at this target within the joint limits",
+                pose,
             )
-        return _result(arm, OK, chosen, [], point, pitch, iterations, None)
+        return _result(arm, OK, chosen, [], point, pitch, iterations, None, pose)
     reason = (
         f"the target is out of reach within the joint limits: the closest the tool gets is "
         f"{chosen.position_error:.6g} m away"
     )
-    return _result(arm, UNREACHABLE, chosen, [], point, pitch, iterations, reason)
+    return _result(arm, UNREACHABLE, chosen, [], point, pitch, iterations, reason, pose)
 
 
 # -- arms outside the family -------------------------------------------------------------
@@ -357,8 +364,9 @@ def _solve_numerical(
     the atlas configurations nearest the target, until one reaches it (with the asked pitch);
     else the best."""
     q = np.empty(arm.robot.nq)
+    reached = np.empty(3)
     w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
-    err, perr, iterations, _ = solve_chain(
+    err, perr, iterations, _, reached_pitch = solve_chain(
         arm.chain,
         point,
         0.0 if pitch is None else pitch,
@@ -371,11 +379,13 @@ def _solve_numerical(
         tolerance,
         PITCH_TOLERANCE,
         q,
+        reached,
     )
+    pose: tuple[FloatArray, float] | None = (reached, wrap(reached_pitch))
     if pitch is not None and err > tolerance:
         # not met with the pitch: the target may still be reached at another (then "approximate")
         free = np.empty(arm.robot.nq)
-        e2, _, more, _ = solve_chain(
+        e2, _, more, _, _ = solve_chain(
             arm.chain,
             point,
             0.0,
@@ -388,12 +398,13 @@ def _solve_numerical(
             tolerance,
             PITCH_TOLERANCE,
             free,
+            np.empty(3),
         )
         iterations += more
         if e2 <= tolerance or e2 < err:
-            q, err = free, e2
+            q, err, pose = free, e2, None
             perr = abs(wrap(arm.robot.tool_pitch(q) - pitch))
-    return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations, tolerance)
+    return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations, tolerance, pose)
 
 
 # -- whole actuator steps ----------------------------------------------------------------------

@@ -65,13 +65,22 @@ register_tuples({"Chain": Chain}, {"Chain": CHAIN_FIELDS})
 
 
 @jit
-def chain_frames(ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray, T: FloatArray) -> None:
+def chain_work(ch: Chain, n: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Scratch for :func:`chain_pose_with` and :func:`chain_jacobian` (made once per iteration,
+    not per evaluation): joint origins and axes (k, 3), the tool placement (4, 4), the tool axis
+    (3,), its derivatives (3, n) and a (3, 3)."""
+    k = ch.axis.shape[0]
+    return np.empty((k, 3)), np.empty((k, 3)), np.empty((4, 4)), np.empty(3), np.empty((3, n)), np.empty((3, 3))
+
+
+@jit
+def chain_frames(ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray, T: FloatArray, A: FloatArray) -> None:
     """Each joint's origin and axis in base (rows of ``origins``, ``axes``: (k, 3)) and the tool
-    frame's placement ``T`` (4, 4) at ``q``. ``T`` carries the running placement."""
+    frame's placement ``T`` (4, 4) at ``q``. ``T`` carries the running placement; ``A`` (3, 3) is
+    scratch."""
     for i in range(4):
         for j in range(4):
             T[i, j] = 1.0 if i == j else 0.0
-    A = np.empty((3, 3))
     for k in range(ch.axis.shape[0]):
         _compose(T, ch.placement[k], A)
         a = ch.axis[k]
@@ -129,12 +138,14 @@ def heading_of(ch: Chain, q: FloatArray, d: FloatArray) -> float:
 @jit
 def chain_pose(ch: Chain, q: FloatArray, point: FloatArray) -> float:
     """Tool point [m] into ``point`` (3,) and tool pitch [rad] in [-pi, pi] at ``q``."""
-    k = ch.axis.shape[0]
-    origins = np.empty((k, 3))
-    axes = np.empty((k, 3))
-    T = np.empty((4, 4))
-    chain_frames(ch, q, origins, axes, T)
-    d = np.empty(3)
+    return chain_pose_with(ch, q, point, chain_work(ch, q.shape[0]))
+
+
+@jit
+def chain_pose_with(ch: Chain, q: FloatArray, point: FloatArray, work: tuple) -> float:
+    """:func:`chain_pose` with the scratch of :func:`chain_work`."""
+    origins, axes, T, d, _, A = work
+    chain_frames(ch, q, origins, axes, T, A)
     tool_direction(ch, T, d)
     for i in range(3):
         point[i] = T[i, 3]
@@ -143,21 +154,26 @@ def chain_pose(ch: Chain, q: FloatArray, point: FloatArray) -> float:
 
 
 @jit
-def chain_jacobian(ch: Chain, q: FloatArray, point: FloatArray, Jp: FloatArray, pitch_row: FloatArray) -> float:
+def chain_jacobian(
+    ch: Chain,
+    q: FloatArray,
+    point: FloatArray,
+    Jp: FloatArray,
+    pitch_row: FloatArray,
+    work: tuple,
+) -> float:
     """At ``q``: the tool point into ``point``, d(point)/dq [m/rad] into ``Jp`` (3, n), the tool
-    pitch's gradient into ``pitch_row`` (n,); returns the tool pitch [rad]."""
+    pitch's gradient into ``pitch_row`` (n,); returns the tool pitch [rad]. ``work``:
+    :func:`chain_work`."""
     k = ch.axis.shape[0]
     n = q.shape[0]
-    origins = np.empty((k, 3))
-    axes = np.empty((k, 3))
-    T = np.empty((4, 4))
-    chain_frames(ch, q, origins, axes, T)
-    d = np.empty(3)
+    origins, axes, T, d, Jd, A = work
+    chain_frames(ch, q, origins, axes, T, A)
     tool_direction(ch, T, d)
     for i in range(3):
         point[i] = T[i, 3]
     Jp[:, :] = 0.0
-    Jd = np.zeros((3, n))
+    Jd[:, :] = 0.0
     for j in range(k):
         w = axes[j]
         c = ch.coordinate[j]

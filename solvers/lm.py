@@ -35,7 +35,7 @@ from .activeset import solve_qp
 from .arrays import Family, family_pitch
 from .geometric import family_fk, wrap_angle
 from .jit import entry, jit
-from .kinematics import Chain, chain_jacobian, chain_pose
+from .kinematics import Chain, chain_jacobian, chain_pose, chain_pose_with, chain_work
 from .limits import limits_ok
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
@@ -43,6 +43,8 @@ TRIES = 12  # damping increases per step before the iteration gives up (a constr
 FIRST_STEPS = 15  # the numerical IK's steps from each start before the best one goes on
 DAMPING = 1e-3  # the first step's damping, relative to the largest diagonal of J'J (then Nielsen's rule)
 POLISH = 1e-9  # ... from a start already within a micrometre (an idealised closed form's branch)
+STEP = 1.0  # [rad] the numerical IK's trust region per step and joint
+START_DAMPING = 1e-5  # ... and its first damping (relative, as DAMPING)
 
 
 @jit
@@ -105,6 +107,7 @@ def _evaluate(
     Jac: FloatArray,
     row: FloatArray,
     jacobian: bool,
+    work: tuple,
 ) -> tuple[float, float]:
     """(cost, pitch error) at ``q`` on the model the flag picks; with ``jacobian``, the position
     Jacobian into ``Jac`` and the pitch gradient into ``row``."""
@@ -112,7 +115,7 @@ def _evaluate(
         if jacobian:
             family_jacobian(f, q, Jac)
         return family_cost(f, q, target, pitch, w2, p)
-    reached = chain_jacobian(ch, q, p, Jac, row) if jacobian else chain_pose(ch, q, p)
+    reached = chain_jacobian(ch, q, p, Jac, row, work) if jacobian else chain_pose_with(ch, q, p, work)
     e0, e1, e2 = target[0] - p[0], target[1] - p[1], target[2] - p[2]
     perr = wrap_angle(pitch - reached) if w2 > 0.0 else 0.0
     return e0 * e0 + e1 * e1 + e2 * e2 + w2 * perr * perr, perr
@@ -158,7 +161,8 @@ def levenberg_marquardt(
     H = np.empty((n, n))
     Hd = np.empty((n, n))
     g = np.empty(n)
-    cost, perr = _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True)
+    work = chain_work(ch, n)
+    cost, perr = _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True, work)
     mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
     nu = 2.0
     it = 0
@@ -200,7 +204,8 @@ def levenberg_marquardt(
                 continue
             for i in range(n):
                 qn[i] = min(max(q[i] + dq[i], lower[i]), upper[i])
-            cost_new, perr_new = _evaluate(f, ch, on_chain, qn, target, pitch, w2, p, Jac, row, False)
+            # (with the Jacobian: an accepted step's is then at hand; H and g keep the current one's)
+            cost_new, perr_new = _evaluate(f, ch, on_chain, qn, target, pitch, w2, p, Jac, row, True, work)
             # gain ratio: actual decrease over the decrease the quadratic model predicts
             predicted = 0.0
             for i in range(n):
@@ -218,7 +223,7 @@ def levenberg_marquardt(
             mu *= nu
             nu *= 2.0
         if not accepted:
-            _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, False)
+            _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, False, work)
             break
         progress = cost - cost_new
         q[:] = qn
@@ -229,7 +234,6 @@ def levenberg_marquardt(
             biggest = max(biggest, abs(dq[i]))
         if progress <= 1e-9 * cost + 1e-24 or biggest < 1e-13:
             break
-        _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True)
     return math.sqrt(max(cost - w2 * perr * perr, 0.0)), abs(perr), it
 
 
@@ -307,7 +311,24 @@ def feasible(ch: Chain, q: FloatArray, inside: FloatArray, out: FloatArray) -> b
     return True
 
 
-@entry("Tuple((f8, f8, i8, i8))(Chain, f8[:], f8, f8, f8[:], f8[:], f8[:, :], f8[:, :], i8, f8, f8, f8[:])")
+@jit
+def _nearest(points: FloatArray, target: FloatArray, order: NDArray[np.int64]) -> None:
+    """The indices of the ``len(order)`` rows of ``points`` nearest ``target``, nearest first."""
+    k_max = order.shape[0]
+    dist = np.full(k_max, np.inf)
+    for i in range(points.shape[0]):
+        d = (points[i, 0] - target[0]) ** 2 + (points[i, 1] - target[1]) ** 2 + (points[i, 2] - target[2]) ** 2
+        if d < dist[k_max - 1]:
+            k = k_max - 1
+            while k > 0 and dist[k - 1] > d:
+                dist[k] = dist[k - 1]
+                order[k] = order[k - 1]
+                k -= 1
+            dist[k] = d
+            order[k] = i
+
+
+@entry("Tuple((f8, f8, i8, i8, f8))(Chain, f8[:], f8, f8, f8[:], f8[:], f8[:, :], f8[:, :], i8, f8, f8, f8[:], f8[:])")
 def solve_chain(
     ch: Chain,
     target: FloatArray,
@@ -321,27 +342,19 @@ def solve_chain(
     tol: float,
     pitch_tol: float,
     q_out: FloatArray,
-) -> tuple[float, float, int, int]:
+    reached: FloatArray,
+) -> tuple[float, float, int, int, float]:
     """The numerical IK of any arm: :func:`levenberg_marquardt` on the exact chain from the seed
     ``ref`` (made feasible toward it from ``inside``, a configuration within every limit), then
     from the ``n_atlas`` atlas configurations whose tool points are nearest the target,
     :data:`FIRST_STEPS` steps each, until one reaches ``tol`` [m] (and ``pitch_tol`` [rad] with
-    ``w2 > 0``); else the best of them iterated to convergence. Into ``q_out``: (position error,
-    pitch error, iterations, starts used)."""
+    ``w2 > 0``), then on to a thousandth of ``tol``; else the best of them iterated to
+    convergence. Into ``q_out`` and its tool point into ``reached``: (position error, pitch
+    error, iterations, starts used, tool pitch [rad])."""
     n = ref.shape[0]
     f = no_family()
-    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
-    dist = np.full(n_atlas, np.inf)
-    for i in range(atlas_p.shape[0]):
-        d = (atlas_p[i, 0] - target[0]) ** 2 + (atlas_p[i, 1] - target[1]) ** 2 + (atlas_p[i, 2] - target[2]) ** 2
-        if d < dist[n_atlas - 1]:
-            k = n_atlas - 1
-            while k > 0 and dist[k - 1] > d:
-                dist[k] = dist[k - 1]
-                order[k] = order[k - 1]
-                k -= 1
-            dist[k] = d
-            order[k] = i
+    fine = max(tol * 1e-3, 1e-12)  # [m] where the iteration stops: a thousandth of the tolerance
+    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points (after the seed)
     q = np.empty(n)
     best, best_err, best_perr = 1e300, math.inf, math.inf
     iters = 0
@@ -350,24 +363,28 @@ def solve_chain(
         if s == 0:
             if not feasible(ch, ref, inside, q):
                 continue
-        elif order[s - 1] >= 0:
-            q[:] = atlas_q[order[s - 1]]
         else:
-            continue
+            if s == 1:  # the seed did not do: the atlas, by a linear scan (some 10 us)
+                _nearest(atlas_p, target, order)
+            if order[s - 1] < 0:
+                continue
+            q[:] = atlas_q[order[s - 1]]
         used += 1
-        err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, FIRST_STEPS, 0.4, 1e-12)
+        err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING)
         iters += it
         score = err * err + w2 * perr * perr
         if score < best:
             best, best_err, best_perr = score, err, perr
             q_out[:] = q
-        if err <= tol and (w2 == 0.0 or perr <= pitch_tol):  # met: a few more steps take it to 1e-12
-            best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 10, 0.4, 1e-12)
-            return best_err, best_perr, iters + it, used
+        if err <= tol and (w2 == 0.0 or perr <= pitch_tol):  # met: a few more steps take it to ``fine``
+            if err > fine:
+                best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 10, STEP, fine)
+                iters += it
+            return best_err, best_perr, iters, used, chain_pose(ch, q_out, reached)
     if best < 1e300:  # none met it: the best start's iteration to convergence
-        best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 200, 0.4, 1e-12)
+        best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 200, STEP, 1e-12)
         iters += it
-    return best_err, best_perr, iters, used
+    return best_err, best_perr, iters, used, chain_pose(ch, q_out, reached)
 
 
 @entry("void(Chain, f8[:, :], i8, f8[:], f8, f8, f8, f8, f8[:], b1[:], i8[:])")
