@@ -24,7 +24,7 @@ from .arrays import Arm, Family, from_family, to_family, view
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import entry, jit
 from .limits import limits_ok
-from .lm import MARGIN, family_cost, refine_family
+from .lm import MARGIN, family_cost, nearest, refine_family
 
 IntArray = NDArray[np.int64]
 
@@ -622,17 +622,8 @@ def closest_family(
                 return err, 0.0, 0
     goal_pitch = pitch - offset
     order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
-    dist = np.full(n_atlas, np.inf)
-    for i in range(atlas_p.shape[0]):
-        d = (atlas_p[i, 0] - target[0]) ** 2 + (atlas_p[i, 1] - target[1]) ** 2 + (atlas_p[i, 2] - target[2]) ** 2
-        if d < dist[n_atlas - 1]:
-            k = n_atlas - 1
-            while k > 0 and dist[k - 1] > d:
-                dist[k] = dist[k - 1]
-                order[k] = order[k - 1]
-                k -= 1
-            dist[k] = d
-            order[k] = i
+    if n_atlas > 0:
+        nearest(atlas_p, target, order)
     # the starts' costs; a few steps from the promising ones; the best one to convergence
     family = np.zeros(n, dtype=np.bool_)
     for k in range(4):

@@ -254,48 +254,14 @@ def _closest(
             err, perr, its2 = refine_chain(arm.chain, point, aim, w2, q, 30, 0.4, 1e-12)
             its += its2
             if tolerance < err <= _NEAR:  # the idealised closed form may say no where the URDF reaches
-                near = np.empty(arm.robot.nq)
-                e2, p2, its2, _, _ = solve_chain(
-                    arm.chain,
-                    point,
-                    aim,
-                    w2,
-                    q,
-                    q,
-                    arm.atlas_q,
-                    arm.atlas_p,
-                    _NUMERICAL_STARTS,
-                    tolerance,
-                    PITCH_TOLERANCE,
-                    near,
-                    np.empty(3),
-                )
+                q, err, perr, its2 = _numerically_better(arm, point, aim, w2, q, err, perr, tolerance)
                 its += its2
-                if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
-                    q, err, perr = near, e2, p2
         g = arm.robot.geometry
         if free_roll and tolerance < err <= _roll_reach(arm) and g is not None and g.roll is not None:
             # the closed form held the wrist roll at the seed's, and the roll moves the tool by
             # as much as is missing: the numerical IK with the roll free, from here and the atlas
-            free = np.empty(arm.robot.nq)
-            e2, p2, its2, _, _ = solve_chain(
-                arm.chain,
-                point,
-                0.0 if pitch is None else pitch,
-                w2,
-                q,
-                q,
-                arm.atlas_q,
-                arm.atlas_p,
-                _NUMERICAL_STARTS,
-                tolerance,
-                PITCH_TOLERANCE,
-                free,
-                np.empty(3),
-            )
+            q, err, perr, its2 = _numerically_better(arm, point, aim, w2, q, err, perr, tolerance)
             its += its2
-            if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
-                q, err, perr = free, e2, p2
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     q = np.empty(arm.robot.nq)
     w2 = 0.0 if pitch is None or not arm.robot.chooses_pitch else _PITCH_WEIGHT**2
@@ -315,6 +281,39 @@ def _closest(
         np.empty(3),
     )
     return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
+
+
+def _numerically_better(
+    arm: ArmState,
+    point: FloatArray,
+    aim: float,
+    w2: float,
+    q: FloatArray,
+    err: float,
+    perr: float,
+    tolerance: float,
+) -> tuple[FloatArray, float, float, int]:
+    """The numerical IK on the exact chain from ``q`` (an answer missing by ``err``), then from
+    the atlas: its answer where it is nearer, else ``q``'s; with the iterations it took."""
+    other = np.empty(arm.robot.nq)
+    e2, p2, its, _, _ = solve_chain(
+        arm.chain,
+        point,
+        aim,
+        w2,
+        q,
+        q,
+        arm.atlas_q,
+        arm.atlas_p,
+        _NUMERICAL_STARTS,
+        tolerance,
+        PITCH_TOLERANCE,
+        other,
+        np.empty(3),
+    )
+    if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
+        return other, e2, p2, its
+    return q, err, perr, its
 
 
 def _roll_reach(arm: ArmState) -> float:

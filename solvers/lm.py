@@ -312,7 +312,7 @@ def feasible(ch: Chain, q: FloatArray, inside: FloatArray, out: FloatArray) -> b
 
 
 @jit
-def _nearest(points: FloatArray, target: FloatArray, order: NDArray[np.int64]) -> None:
+def nearest(points: FloatArray, target: FloatArray, order: NDArray[np.int64]) -> None:
     """The indices of the ``len(order)`` rows of ``points`` nearest ``target``, nearest first."""
     k_max = order.shape[0]
     dist = np.full(k_max, np.inf)
@@ -365,7 +365,7 @@ def solve_chain(
                 continue
         else:
             if s == 1:  # the seed did not do: the atlas, by a linear scan (some 10 us)
-                _nearest(atlas_p, target, order)
+                nearest(atlas_p, target, order)
             if order[s - 1] < 0:
                 continue
             q[:] = atlas_q[order[s - 1]]
