@@ -51,10 +51,10 @@ def _rhs(i: int, n: int, lb: FloatArray, ub: FloatArray, cl: FloatArray, cu: Flo
 
 
 @jit
-def _gauss(K: FloatArray, r: FloatArray, out: FloatArray) -> bool:
-    """Solve ``K out = r`` in place by Gaussian elimination with partial pivoting (K, r destroyed);
-    False when K is singular (dependent active constraints)."""
-    size = K.shape[0]
+def _gauss(K: FloatArray, r: FloatArray, out: FloatArray, size: int) -> bool:
+    """Solve ``K out = r`` in the leading ``size`` rows and columns, in place, by Gaussian
+    elimination with partial pivoting (K, r destroyed); False when K is singular (dependent
+    active constraints). (A size, not a view: Numba counts a reference for every view.)"""
     for c in range(size):
         piv = c
         big = abs(K[c, c])
@@ -124,7 +124,7 @@ def _solve_box(H: FloatArray, g: FloatArray, lb: FloatArray, ub: FloatArray, x: 
             r[a] = acc
             for b in range(nf):
                 K[a, b] = H[i, free[b]]
-        if nf > 0 and not _gauss(K[:nf, :nf], r[:nf], sol[:nf]):
+        if nf > 0 and not _gauss(K, r, sol, nf):
             return False
         for i in range(n):
             target[i] = x[i]
@@ -189,7 +189,7 @@ def solve_qp(
     n = H.shape[0]
     K0 = H.copy()
     r0 = -g
-    if _gauss(K0, r0, x) and _inside(x, lb, ub, C, cl, cu):
+    if _gauss(K0, r0, x, n) and _inside(x, lb, ub, C, cl, cu):
         return True
     if C.shape[0] == 0:
         return _solve_box(H, g, lb, ub, x)
@@ -234,7 +234,7 @@ def solve_qp(
             r[i] = -acc
         for j in range(nw):
             r[n + j] = 0.0
-        if not _gauss(K[:size, :size], r[:size], sol[:size]):
+        if not _gauss(K, r, sol, size):
             if nw == 0:  # singular with no constraint to drop: H itself is; the caller damps it and retries
                 return False
             # dependent active rows: drop the newest one (or, that done, the last in the working set)

@@ -65,36 +65,55 @@ register_tuples({"Chain": Chain}, {"Chain": CHAIN_FIELDS})
 
 
 @jit
-def chain_work(ch: Chain, n: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+def chain_work(ch: Chain, n: int) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
     """Scratch for :func:`chain_pose_with` and :func:`chain_jacobian` (made once per iteration,
     not per evaluation): joint origins and axes (k, 3), the tool placement (4, 4), the tool axis
-    (3,), its derivatives (3, n) and a (3, 3)."""
+    (3,) and its derivatives (3, n)."""
     k = ch.axis.shape[0]
-    return np.empty((k, 3)), np.empty((k, 3)), np.empty((4, 4)), np.empty(3), np.empty((3, n)), np.empty((3, 3))
+    return np.empty((k, 3)), np.empty((k, 3)), np.empty((4, 4)), np.empty(3), np.empty((3, n))
 
 
 @jit
-def chain_frames(ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray, T: FloatArray, A: FloatArray) -> None:
-    """Each joint's origin and axis in base (rows of ``origins``, ``axes``: (k, 3)) and the tool
-    frame's placement ``T`` (4, 4) at ``q``. ``T`` carries the running placement; ``A`` (3, 3) is
-    scratch."""
+def chain_frames(
+    ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray, T: FloatArray, d: FloatArray
+) -> float:
+    """Each joint's origin and axis in base (rows of ``origins``, ``axes``: (k, 3)), the tool
+    frame's placement ``T`` (4, 4) and the tool axis in base ``d`` (3,) at ``q``; returns the
+    heading [rad] in which the tool pitch is measured: the arm's yaw's, or (no yaw) the tool
+    axis's own horizontal direction. ``T`` carries the running placement.
+
+    (Each array is taken from the tuple once and read element by element: Numba counts a
+    reference for every field read and every row view, atomically, which inside the loop was
+    most of this function's time.)"""
     for i in range(4):
         for j in range(4):
             T[i, j] = 1.0 if i == j else 0.0
-    for k in range(ch.axis.shape[0]):
-        _compose(T, ch.placement[k], A)
-        a = ch.axis[k]
+    P, ax, scale, coordinate, offset, prismatic = (
+        ch.placement,
+        ch.axis,
+        ch.scale,
+        ch.coordinate,
+        ch.offset,
+        ch.prismatic,
+    )
+    for k in range(ax.shape[0]):
+        for i in range(3):  # T = T P[k]
+            r0, r1, r2 = T[i, 0], T[i, 1], T[i, 2]
+            T[i, 3] += r0 * P[k, 0, 3] + r1 * P[k, 1, 3] + r2 * P[k, 2, 3]
+            T[i, 0] = r0 * P[k, 0, 0] + r1 * P[k, 1, 0] + r2 * P[k, 2, 0]
+            T[i, 1] = r0 * P[k, 0, 1] + r1 * P[k, 1, 1] + r2 * P[k, 2, 1]
+            T[i, 2] = r0 * P[k, 0, 2] + r1 * P[k, 1, 2] + r2 * P[k, 2, 2]
+        x, y, z = ax[k, 0], ax[k, 1], ax[k, 2]
         for i in range(3):
-            axes[k, i] = T[i, 0] * a[0] + T[i, 1] * a[1] + T[i, 2] * a[2]
+            axes[k, i] = T[i, 0] * x + T[i, 1] * y + T[i, 2] * z
             origins[k, i] = T[i, 3]
-        value = ch.scale[k] * q[ch.coordinate[k]] + ch.offset[k]
-        if ch.prismatic[k] == 1:
+        value = scale[k] * q[coordinate[k]] + offset[k]
+        if prismatic[k] == 1:
             for i in range(3):
                 T[i, 3] += axes[k, i] * value
-        else:  # T's rotation times the turn about the local axis a (Rodrigues)
+        else:  # T's rotation times the turn about the local axis (x, y, z) (Rodrigues)
             c, s = math.cos(value), math.sin(value)
             t = 1.0 - c
-            x, y, z = a[0], a[1], a[2]
             K00, K01, K02 = c + x * x * t, x * y * t - z * s, x * z * t + y * s
             K10, K11, K12 = y * x * t + z * s, c + y * y * t, y * z * t - x * s
             K20, K21, K22 = z * x * t - y * s, z * y * t + x * s, c + z * z * t
@@ -103,33 +122,16 @@ def chain_frames(ch: Chain, q: FloatArray, origins: FloatArray, axes: FloatArray
                 T[i, 0] = r0 * K00 + r1 * K10 + r2 * K20
                 T[i, 1] = r0 * K01 + r1 * K11 + r2 * K21
                 T[i, 2] = r0 * K02 + r1 * K12 + r2 * K22
-    _compose(T, ch.tool, A)
-
-
-@jit
-def _compose(T: FloatArray, M: FloatArray, A: FloatArray) -> None:
-    """``T`` = T M in place (both rigid placements, 4 x 4); ``A`` (3, 3) is scratch."""
+    M = ch.tool
+    for i in range(3):  # T = T tool
+        r0, r1, r2 = T[i, 0], T[i, 1], T[i, 2]
+        T[i, 3] += r0 * M[0, 3] + r1 * M[1, 3] + r2 * M[2, 3]
+        T[i, 0] = r0 * M[0, 0] + r1 * M[1, 0] + r2 * M[2, 0]
+        T[i, 1] = r0 * M[0, 1] + r1 * M[1, 1] + r2 * M[2, 1]
+        T[i, 2] = r0 * M[0, 2] + r1 * M[1, 2] + r2 * M[2, 2]
+    a = ch.tool_axis
     for i in range(3):
-        T[i, 3] += T[i, 0] * M[0, 3] + T[i, 1] * M[1, 3] + T[i, 2] * M[2, 3]
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = T[i, 0] * M[0, j] + T[i, 1] * M[1, j] + T[i, 2] * M[2, j]
-    for i in range(3):
-        for j in range(3):
-            T[i, j] = A[i, j]
-
-
-@jit
-def tool_direction(ch: Chain, T: FloatArray, d: FloatArray) -> None:
-    """The tool axis in base at tool placement ``T`` into ``d`` (3,)."""
-    for i in range(3):
-        d[i] = T[i, 0] * ch.tool_axis[0] + T[i, 1] * ch.tool_axis[1] + T[i, 2] * ch.tool_axis[2]
-
-
-@jit
-def heading_of(ch: Chain, q: FloatArray, d: FloatArray) -> float:
-    """The direction [rad] in which the tool pitch is measured: the arm's yaw heading, or (no
-    yaw) the tool axis's own horizontal direction."""
+        d[i] = T[i, 0] * a[0] + T[i, 1] * a[1] + T[i, 2] * a[2]
     if ch.yaw >= 0:
         return ch.yaw_sign * q[ch.yaw] + ch.yaw_zero
     return math.atan2(d[1], d[0])
@@ -144,12 +146,10 @@ def chain_pose(ch: Chain, q: FloatArray, point: FloatArray) -> float:
 @jit
 def chain_pose_with(ch: Chain, q: FloatArray, point: FloatArray, work: tuple) -> float:
     """:func:`chain_pose` with the scratch of :func:`chain_work`."""
-    origins, axes, T, d, _, A = work
-    chain_frames(ch, q, origins, axes, T, A)
-    tool_direction(ch, T, d)
+    origins, axes, T, d, _ = work
+    h = chain_frames(ch, q, origins, axes, T, d)
     for i in range(3):
         point[i] = T[i, 3]
-    h = heading_of(ch, q, d)
     return math.atan2(d[2], d[0] * math.cos(h) + d[1] * math.sin(h))
 
 
@@ -167,29 +167,31 @@ def chain_jacobian(
     :func:`chain_work`."""
     k = ch.axis.shape[0]
     n = q.shape[0]
-    origins, axes, T, d, Jd, A = work
-    chain_frames(ch, q, origins, axes, T, A)
-    tool_direction(ch, T, d)
+    origins, axes, T, d, Jd = work
+    h = chain_frames(ch, q, origins, axes, T, d)
     for i in range(3):
         point[i] = T[i, 3]
-    Jp[:, :] = 0.0
-    Jd[:, :] = 0.0
+    for i in range(3):
+        for c in range(n):
+            Jp[i, c] = 0.0
+            Jd[i, c] = 0.0
+    coordinate, scale, prismatic = ch.coordinate, ch.scale, ch.prismatic
     for j in range(k):
-        w = axes[j]
-        c = ch.coordinate[j]
-        s = ch.scale[j]
-        if ch.prismatic[j] == 1:
-            for i in range(3):
-                Jp[i, c] += s * w[i]
+        w0, w1, w2 = axes[j, 0], axes[j, 1], axes[j, 2]
+        c = coordinate[j]
+        s = scale[j]
+        if prismatic[j] == 1:
+            Jp[0, c] += s * w0
+            Jp[1, c] += s * w1
+            Jp[2, c] += s * w2
             continue
         rx, ry, rz = point[0] - origins[j, 0], point[1] - origins[j, 1], point[2] - origins[j, 2]
-        Jp[0, c] += s * (w[1] * rz - w[2] * ry)
-        Jp[1, c] += s * (w[2] * rx - w[0] * rz)
-        Jp[2, c] += s * (w[0] * ry - w[1] * rx)
-        Jd[0, c] += s * (w[1] * d[2] - w[2] * d[1])
-        Jd[1, c] += s * (w[2] * d[0] - w[0] * d[2])
-        Jd[2, c] += s * (w[0] * d[1] - w[1] * d[0])
-    h = heading_of(ch, q, d)
+        Jp[0, c] += s * (w1 * rz - w2 * ry)
+        Jp[1, c] += s * (w2 * rx - w0 * rz)
+        Jp[2, c] += s * (w0 * ry - w1 * rx)
+        Jd[0, c] += s * (w1 * d[2] - w2 * d[1])
+        Jd[1, c] += s * (w2 * d[0] - w0 * d[2])
+        Jd[2, c] += s * (w0 * d[1] - w1 * d[0])
     ch_, sh = math.cos(h), math.sin(h)
     b = d[2]
     if ch.yaw >= 0:
