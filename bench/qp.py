@@ -1,21 +1,26 @@
-"""Which QP earns its place in the IK's numerical stage? DAQP vs OSQP (qpsolvers) vs PlaCo.
+"""Which QP for the IK's numerical stage? armd's compiled active set vs DAQP vs OSQP vs PlaCo.
 
 The task is the refinement armd runs when the closed form is not exact on the URDF: from
 a start near a solution (a random in-limit configuration's joints, each moved by up to
 ``--spread`` rad, projected into the limits), bring the tool point onto the target within
 1e-9 m, never leaving the joint limits.
 
-* ``daqp``: armd's QPRefiner (Levenberg-Marquardt, every step a QP with hard box and coupled
-  limits, solved by DAQP, a dual active-set solver for small dense QPs).
-* ``osqp``: the same iteration, each step's QP solved by OSQP through qpsolvers
+* ``armd``: armd's refinement (``solvers.lm.refine_chain``): Levenberg-Marquardt on the URDF's
+  compiled chain, every step a QP with hard box and coupled limits solved by armd's own
+  compiled active set (``solvers/activeset.py``); one native call a refinement.
+* ``daqp``: the same iteration in Python on Pinocchio, each step's QP solved by DAQP (a dual
+  active-set solver for small dense QPs): armd's numerical stage until issue 16
+  (``bench/daqp_lm.py``).
+* ``osqp``: that Python iteration with each step's QP solved by OSQP through qpsolvers
   (eps 1e-9; OSQP is an ADMM first-order solver).
 * ``placo``: PlaCo's KinematicsSolver: a position task on the tool frame, joint limits on,
   ``solve(True)`` repeated until the error is below 1e-9 m or 200 steps.
   PlaCo parses the URDF without mimic joints, so the desk4 (linkage as mimic joints) is
   left out for it.
 
-Run: ``.venv/bin/python bench/qp.py`` (``--n`` starts per arm). Prints a Markdown table:
-success rate at 1e-9 m, median and p99 time per refinement [us], median iterations.
+Run: ``python bench/qp.py`` in the bench environment (bench/README.md; ``--n`` starts per
+arm). Prints a Markdown table: success rate at 1e-9 m, median and p99 time per refinement
+[us], median iterations, and each method's median over armd's.
 """
 
 from __future__ import annotations
@@ -31,10 +36,15 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+sys.path.insert(1, str(HERE.parent))
 
-from armd import robots
-from armd.solvers import QPRefiner
+from daqp_lm import QPRefiner  # noqa: E402
+
+from armd import robots  # noqa: E402
+from armd.solvers.arm import arm_state  # noqa: E402
+from armd.solvers.lm import refine_chain  # noqa: E402
 
 
 class OSQPRefiner(QPRefiner):
@@ -108,6 +118,15 @@ def run(arm: robots.Robot, method: str, starts: np.ndarray, targets: np.ndarray)
             q = np.array([robot.get_joint(n) for n in names])
             iters.append(k)
             ok += np.linalg.norm(arm.fk(q) - t) <= 1e-9 and arm.limits.contains(q, tol=1e-12)
+    elif method == "armd":
+        chain = arm_state(arm).chain
+        for q0, t in zip(starts, targets, strict=True):
+            q = q0.copy()
+            t0 = time.perf_counter_ns()
+            err, _, its = refine_chain(chain, t, 0.0, 0.0, q, 200, 1.0, 1e-10)
+            times.append(time.perf_counter_ns() - t0)
+            iters.append(its)
+            ok += err <= 1e-9 and np.linalg.norm(arm.fk(q) - t) <= 1e-9 and arm.limits.contains(q, tol=0.0)
     else:
         refiner = QPRefiner(arm) if method == "daqp" else OSQPRefiner(arm)
         for q0, t in zip(starts, targets, strict=True):
@@ -144,13 +163,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, default=300, help="refinements per arm and method")
     ap.add_argument("--spread", type=float, default=0.1, help="start offset from a solution [rad]")
-    ap.add_argument("--methods", default="daqp,osqp,placo")
+    ap.add_argument("--methods", default="armd,daqp,osqp,placo")
     args = ap.parse_args()
     rng = np.random.default_rng(2026)
-    print("| arm | method | success @1e-9 m | median us | p99 us | median iterations | vs daqp (median) |")
+    print("| arm | method | success @1e-9 m | median us | p99 us | median iterations | vs armd (median) |")
     print("|---|---|---|---|---|---|---|")
-    for name in robots.names():
-        arm = robots.load(name)
+    # the catalogue, and the vendors' arms of examples/arms (the myCobot 280: six joints)
+    arms = [robots.load(name) for name in robots.names()]
+    arms += [robots.load_folder(HERE.parent / "examples" / "arms" / f) for f in ("so101-vendor", "mycobot280")]
+    for arm in arms:
+        name = arm.name
         lim = arm.limits
         qs = rng.uniform(lim.lower, lim.upper, size=(20 * args.n, arm.nq))
         qs = qs[lim.contains_batch(qs, tol=0.0)][: args.n]
@@ -166,7 +188,7 @@ def main() -> None:
                 continue
             with quiet_stdout():
                 res = run(arm, method, starts, targets)
-            base = res["median_us"] if method == "daqp" else base
+            base = res["median_us"] if method == "armd" else base
             ratio = f"{res['median_us'] / base:.1f}x" if base else ""
             print(
                 f"| {name} | {method} | {100 * res['success']:.1f}% | {res['median_us']:.0f} | "

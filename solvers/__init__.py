@@ -9,7 +9,6 @@
 
 from .batch import BatchIKResult, reachable, solve_ik_batch
 from .ik import DEFAULT_TOLERANCE, solve_ik
-from .qp import QPRefiner, Refined
 from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, SensorReading, approach_pitch, target_point
 
@@ -23,8 +22,6 @@ __all__ = [
     "BatchIKResult",
     "Branch",
     "IKResult",
-    "QPRefiner",
-    "Refined",
     "SensorReading",
     "approach_pitch",
     "reachable",

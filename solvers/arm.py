@@ -1,9 +1,10 @@
 """The solver's state for one arm, built once and kept by the arm (:meth:`Robot.derived`).
 
 :func:`arm_state` gives, for a :class:`~armd.robots.Robot`, the compiled code's arrays
-(:class:`~armd.solvers.arrays.Arm`, where the arm is of the closed-form family), the QP on the
-exact model, the atlas (in-limit configurations spread over joint space with their tool points:
-starts for the closest-point search and the numerical IK) and per-thread scratch buffers.
+(:class:`~armd.solvers.arrays.Arm`, where the arm is of the closed-form family), the exact
+model's chain (:class:`~armd.solvers.kinematics.Chain`), the atlas (in-limit configurations
+spread over joint space with their tool points: starts for the closest-point search and the
+numerical IK) and per-thread scratch buffers.
 """
 
 from __future__ import annotations
@@ -21,7 +22,6 @@ from armd.robots.types import FloatArray
 from .arrays import Arm, Family
 from .geometric import arm_pose
 from .kinematics import Chain
-from .qp import QPRefiner
 
 ATLAS_SIZE = 4096
 
@@ -45,7 +45,6 @@ class ArmState:
     robot: Robot
     arrays: Arm | None  # the compiled code's arrays; None outside the family
     chain: Chain  # the exact model, compiled
-    qp: QPRefiner
     weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
     exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
     atlas_q: FloatArray  # (k, n) in-limit configurations [rad]
@@ -205,7 +204,6 @@ def _build(robot: Robot) -> ArmState:
         robot,
         arrays,
         chain_of(robot),
-        QPRefiner(robot),
         1.0 / robot.limits.velocity,
         exact,
         atlas_q,

@@ -7,7 +7,8 @@ The pipeline, for an arm of the closed-form family (all four catalogue arms):
    the limits; branches outside any limit (box or coupled) are dropped.
 3. Each remaining branch is checked by FK on the exact Pinocchio model. Where the
    ``[geometry]`` parameters are an idealisation of the URDF (as seed 004's planar model is),
-   the QP refinement (:mod:`solvers.qp`) takes the branch the rest of the way, inside the limits.
+   the refinement on the exact chain (:mod:`solvers.lm`: Levenberg-Marquardt, each step a QP
+   with hard limits) takes the branch the rest of the way, inside the limits.
 4. Among the valid branches, the nearest to the seed (or to the neutral pose when there is
    no seed) wins, by joint distance weighted by 1 / vmax (about the time to get there); ties
    go to the first in the fixed order front/up, front/down, flipped/up, flipped/down, so
@@ -19,9 +20,10 @@ pitch nearest to either of them (seed 001's reachable areas A and B). With a pit
 for and not reachable at that target, the answer uses the nearest reachable pitch and says
 ``approximate``.
 
-Unreachable targets get the closest configuration within limits (QP from the arm
-stretched toward the target, and from the seed), ``status = "unreachable"``, the reached
-point and the remaining error. An arm outside the family gets the QP from several starts.
+Unreachable targets get the closest configuration within limits (:mod:`solvers.closest`:
+from the seed and from the atlas configurations nearest the target), ``status =
+"unreachable"``, the reached point and the remaining error. An arm outside the family gets
+the numerical IK (:func:`solvers.lm.solve_chain`) from the seed, then from the atlas.
 """
 
 from __future__ import annotations

@@ -29,7 +29,7 @@ error in-process.
     |-- ControllerFault          fault             (an adapter's controller stopped answering, or alarmed)
     |-- ViewerError              viewer            (the 3-D viewer cannot start or lost its server)
     |-- NoReply                  timeout           (a TimeoutError: no service answered)
-    |-- Internal, PlannerError, QPError  internal  (bugs and numerical corner cases)
+    |-- Internal, PlannerError   internal          (bugs and numerical corner cases)
     `-- ServiceError             (the reply's)     (the service answered with an error)
 """
 
@@ -288,10 +288,6 @@ class Internal(ArmdError):
 
 class PlannerError(ArmdError):
     """Ruckig could not compute a segment (reported as ``internal``: a bug or a corner case)."""
-
-
-class QPError(ArmdError):
-    """The QP backend failed on a step (a numerical failure, reported as ``internal``)."""
 
 
 # -- over the wire -----------------------------------------------------------------------------

@@ -1,20 +1,17 @@
-"""The numerical stage: constrained Gauss-Newton on the exact Pinocchio model, each step a QP.
+"""armd's numerical stage until issue 16, kept as a peer for ``bench/qp.py``: a Python
+Levenberg-Marquardt on the exact Pinocchio model, each step a QP solved by DAQP.
 
-Seed 004 refines its analytic answer with a Jacobian-transpose iteration. armd instead
+Seed 004 refines its analytic answer with a Jacobian-transpose iteration. This iteration
 solves, at every step, the QP
 
     min_dq  1/2 |J dq - e|^2 + w^2/2 |J_pitch dq - e_pitch|^2 + mu/2 |dq|^2
     s.t.    max(lower - q, -step) <= dq <= min(upper - q, step)       (box limits, trust region)
             c_lo - C q <= C dq <= c_hi - C q                            (coupled limits)
 
-so that every iterate stays inside every joint limit (hard constraints, not penalties), and
-the iteration converges quadratically to the target when it is reachable, or to the
-closest configuration within limits when it is not.
-
-The QP backend is DAQP (a dual active-set solver for small dense QPs): measured against
-OSQP through qpsolvers and against PlaCo's KinematicsSolver in ``bench/qp.py``, it solves
-these 3-6 variable problems exactly in ~10 us where OSQP needs milliseconds to reach the
-same precision (see docs/benchmarks.md).
+with DAQP (a dual active-set solver for small dense QPs, ~10 us a step). armd now runs the
+same QP in its own compiled loop (``solvers/lm.py`` over ``solvers/activeset.py``): the
+Python calls to Pinocchio and DAQP cost some 100 us a refinement, and a failed DAQP step
+raised here (``QPError``) where the compiled loop retries it with more damping.
 """
 
 from __future__ import annotations
@@ -26,13 +23,16 @@ import daqp
 import numpy as np
 import pinocchio as pin
 
-from armd.errors import QPError
 from armd.robots import Robot
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
 _LOCAL = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _MARGIN = 1e-12  # [rad]
+
+
+class QPError(RuntimeError):
+    """DAQP failed on a step."""
 
 
 @dataclass(frozen=True)
@@ -84,7 +84,7 @@ class QPRefiner:
             bu, bl = hi, lo
         x, _fval, exitflag, _info = daqp.solve(H, f, self.C, bu, bl, self.sense)
         if exitflag < 1:
-            raise QPError(f"QP step failed (DAQP exit flag {exitflag})", robot=self.robot.name)
+            raise QPError(f"QP step failed (DAQP exit flag {exitflag}) on {self.robot.name}")
         return np.asarray(x)
 
     def _evaluate(
