@@ -45,6 +45,7 @@ DAMPING = 1e-3  # the first step's damping, relative to the largest diagonal of 
 POLISH = 1e-9  # ... from a start already within a micrometre (an idealised closed form's branch)
 STEP = 1.0  # [rad] the numerical IK's trust region per step and joint
 START_DAMPING = 1e-5  # ... and its first damping (relative, as DAMPING)
+STALL = 0.2  # ... and it leaves a start whose cost falls by less than this fraction, twice in a row
 
 
 @jit
@@ -134,11 +135,14 @@ def levenberg_marquardt(
     step: float,
     tol: float,
     damping: float = DAMPING,
+    stall: float = 0.0,
 ) -> tuple[float, float, int]:
     """From ``q`` (within the model's limits), in place: (position error [m], pitch error [rad],
     iterations). ``w2 > 0`` adds the pitch task with that weight^2. Stops at ``tol`` (position
-    [m] and pitch [rad]), when no step lowers the cost (a constrained optimum), or when the error
-    no longer falls by a billionth of itself."""
+    [m] and pitch [rad]), when no step lowers the cost (a constrained optimum), when the error
+    no longer falls by a billionth of itself, or (``stall`` > 0) when two steps in a row each
+    lower the cost by less than that fraction of it (creeping toward an optimum pressed
+    against a limit: another start does better)."""
     if on_chain:
         lower, upper, C, clo, chi = ch.lower, ch.upper, ch.C, ch.clo, ch.chi
     else:
@@ -166,6 +170,7 @@ def levenberg_marquardt(
     mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
     nu = 2.0
     it = 0
+    slow = 0  # consecutive steps that lowered the cost by less than ``stall`` of it
     while it < max_iter:
         err = math.sqrt(max(cost - w2 * perr * perr, 0.0))
         if err <= tol and abs(perr) <= tol:
@@ -233,6 +238,9 @@ def levenberg_marquardt(
         for i in range(n):
             biggest = max(biggest, abs(dq[i]))
         if progress <= 1e-9 * cost + 1e-24 or biggest < 1e-13:
+            break
+        slow = slow + 1 if progress < stall * (cost + progress) else 0
+        if slow >= 2:
             break
     return math.sqrt(max(cost - w2 * perr * perr, 0.0)), abs(perr), it
 
@@ -370,7 +378,9 @@ def solve_chain(
                 continue
             q[:] = atlas_q[order[s - 1]]
         used += 1
-        err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING)
+        err, perr, it = levenberg_marquardt(
+            f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING, STALL
+        )
         iters += it
         score = err * err + w2 * perr * perr
         if score < best:
