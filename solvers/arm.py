@@ -49,6 +49,8 @@ class ArmState:
     exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
     atlas_q: FloatArray  # (k, n) in-limit configurations [rad]
     atlas_p: FloatArray  # (k, 3) their tool points [m]
+    reach: float  # [m] the farthest atlas tool point from the base origin: beyond, a target is taken as far
+    rolls_tool: bool  # the wrist roll moves the tool point (the closed form holds it at the seed's)
     buffers: Buffers
 
     @property
@@ -200,6 +202,8 @@ def _build(robot: Robot) -> ArmState:
             worst = max(worst, float(np.max(np.abs(out - robot.fk(q)))))
         exact = worst < 1e-12
     atlas_q = _atlas(robot)
+    atlas_p = np.ascontiguousarray([robot.fk(q) for q in atlas_q])
+    roll_model = None if g is None else g.roll_model
     return ArmState(
         robot,
         arrays,
@@ -207,6 +211,8 @@ def _build(robot: Robot) -> ArmState:
         1.0 / robot.limits.velocity,
         exact,
         atlas_q,
-        np.ascontiguousarray([robot.fk(q) for q in atlas_q]),
+        atlas_p,
+        float(np.max(np.linalg.norm(atlas_p, axis=1))),
+        roll_model is not None and roll_model.reach > 1e-9,
         Buffers(robot.nq),
     )

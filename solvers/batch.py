@@ -204,7 +204,7 @@ def solve_ik_batch(
         p_i = float(pitches[i]) if per_target else pitch
         r = (
             solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance)
-            if solved[i]
+            if solved[i] or arm.rolls_tool  # (out of reach at the seed's roll: solve_ik turns it)
             else _closest(arm, pts[i], p_i, refs[i], tolerance, 0)
         )
         _store(int(i), r, status, branch, q, err, reached, pitch_out)

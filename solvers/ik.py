@@ -56,6 +56,9 @@ _NUMERICAL_STARTS = 8  # numerical IK starts from the atlas (after the seed)
 _NEAR = 1e-3  # [m] an idealised closed form's closest point this near: the numerical IK tries too
 _NEAR_PITCH = 1e-4  # [rad] an idealised closed form's nearest pitch this near the asked one: it is tried
 _PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
+_ROLL_PROBES = (1, -1, 2, -2, 3, -3, 4)  # tool roll turns tried, in eighths of a turn, in order
+_ROLL_HALVINGS = 2  # ... and halvings of the turn that reaches, toward the seed's roll
+_ORIGIN = np.zeros(3)
 
 
 def solve_ik(
@@ -184,6 +187,12 @@ def _solve_family(
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+    if code == NONE and free_roll and arm.rolls_tool and _dist(point, _ORIGIN) <= arm.reach:
+        # out of reach with the seed's roll, and the roll moves the tool point: the closed form
+        # at other rolls, the least turn first
+        turned = _turn_roll(arm, point, prefs, ref)
+        if turned is not None:
+            ref, (code, m, phi, pitch_sum) = turned
     if code == NONE:
         return _closest(arm, point, pitch, ref, tolerance, 0, free_roll)
     if code == EXACT or pitch is None:
@@ -232,6 +241,44 @@ def _solve_family(
     if not found:
         return _closest(arm, point, pitch, ref, tolerance, iterations, free_roll)
     return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
+
+
+def _turn_roll(
+    arm: ArmState, point: FloatArray, prefs: FloatArray, ref: FloatArray
+) -> tuple[FloatArray, tuple[int, int, float, float]] | None:
+    """The seed with its wrist roll turned, as little as it takes, so that the closed form
+    reaches ``point``; with the closed form's answer there (in ``arm.buffers``). None if no
+    probe does. The tool rolls 45, 90, 135, 180 degrees each way from the seed's are tried in
+    that order (each the joint angle within limits nearest the seed's), and the turn that
+    reaches is halved toward the seed's joint angle while it still does."""
+    arrays = arm.arrays
+    assert arrays is not None and arm.robot.roll_joint is not None
+    b = arm.buffers
+    i = arm.robot.roll_joint.index
+    lo, hi = float(arm.robot.limits.lower[i]), float(arm.robot.limits.upper[i])
+    start = float(ref[i])
+    probe = ref.copy()
+
+    def at(angle: float) -> tuple[int, int, float, float]:
+        probe[i] = angle
+        return solve_point(arrays, probe, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+
+    for k in _ROLL_PROBES:
+        turns = [t for t in (k * math.pi / 4 + 2 * math.pi * m for m in (-1, 0, 1)) if lo <= start + t <= hi]
+        if not turns:
+            continue
+        turn = min(turns, key=abs)
+        found = at(start + turn)
+        if found[0] == NONE:
+            continue
+        for _ in range(_ROLL_HALVINGS):
+            nearer = at(start + 0.5 * turn)
+            if nearer[0] == NONE:
+                found = at(start + turn)  # (the buffers hold the last probe's answer)
+                break
+            turn, found = 0.5 * turn, nearer
+        return probe, found
+    return None
 
 
 def _closest(
