@@ -213,6 +213,6 @@ def _build(robot: Robot) -> ArmState:
         atlas_q,
         atlas_p,
         float(np.max(np.linalg.norm(atlas_p, axis=1))),
-        roll_model is not None and roll_model.reach > 1e-9,
+        g is not None and g.roll is not None and roll_model is not None and roll_model.reach > 1e-9,
         Buffers(robot.nq),
     )

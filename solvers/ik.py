@@ -251,10 +251,10 @@ def _turn_roll(
     probe does. The tool rolls 45, 90, 135, 180 degrees each way from the seed's are tried in
     that order (each the joint angle within limits nearest the seed's), and the turn that
     reaches is halved toward the seed's joint angle while it still does."""
-    arrays = arm.arrays
-    assert arrays is not None and arm.robot.roll_joint is not None
+    arrays, g = arm.arrays, arm.robot.geometry
+    assert arrays is not None and g is not None and g.roll is not None
     b = arm.buffers
-    i = arm.robot.roll_joint.index
+    i = g.roll
     lo, hi = float(arm.robot.limits.lower[i]), float(arm.robot.limits.upper[i])
     start = float(ref[i])
     probe = ref.copy()
