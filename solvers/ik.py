@@ -314,22 +314,43 @@ def _closest(
         return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
     q = np.empty(arm.robot.nq)
     w2 = 0.0 if pitch is None or not arm.robot.chooses_pitch else _PITCH_WEIGHT**2
-    err, perr, its, _, _ = solve_chain(
-        arm.chain,
-        point,
-        0.0 if pitch is None else pitch,
-        w2,
-        ref,
-        arm.robot.neutral,
-        arm.atlas_q,
-        arm.atlas_p,
-        _ATLAS_STARTS,
-        tolerance,
-        PITCH_TOLERANCE,
-        q,
-        np.empty(3),
+    err, perr, its, _ = _chain_solve(
+        arm, point, 0.0 if pitch is None else pitch, w2, ref, arm.robot.neutral, _ATLAS_STARTS, tolerance, q
     )
     return _closest_result(arm, point, pitch, Branch("numerical", q, err), perr, iterations + its, tolerance)
+
+
+def _chain_solve(
+    arm: ArmState,
+    point: FloatArray,
+    pitch: float,
+    w2: float,
+    ref: FloatArray,
+    inside: FloatArray,
+    starts: int,
+    tolerance: float,
+    q_out: FloatArray,
+    reached: FloatArray | None = None,
+) -> tuple[float, float, int, float]:
+    """:func:`solvers.lm.solve_chain` on ``arm``'s chain and atlas (``starts`` of it): (position
+    error, pitch error, iterations, tool pitch), the answer into ``q_out`` and its tool point
+    into ``reached``."""
+    err, perr, its, _, reached_pitch = solve_chain(
+        arm.chain,
+        point,
+        pitch,
+        w2,
+        ref,
+        inside,
+        arm.atlas_q,
+        arm.atlas_p,
+        starts,
+        tolerance,
+        PITCH_TOLERANCE,
+        q_out,
+        np.empty(3) if reached is None else reached,
+    )
+    return err, perr, its, reached_pitch
 
 
 def _numerically_better(
@@ -345,21 +366,7 @@ def _numerically_better(
     """The numerical IK on the exact chain from ``q`` (an answer missing by ``err``), then from
     the atlas: its answer where it is nearer, else ``q``'s; with the iterations it took."""
     other = np.empty(arm.robot.nq)
-    e2, p2, its, _, _ = solve_chain(
-        arm.chain,
-        point,
-        aim,
-        w2,
-        q,
-        q,
-        arm.atlas_q,
-        arm.atlas_p,
-        _NUMERICAL_STARTS,
-        tolerance,
-        PITCH_TOLERANCE,
-        other,
-        np.empty(3),
-    )
+    e2, p2, its, _ = _chain_solve(arm, point, aim, w2, q, q, _NUMERICAL_STARTS, tolerance, other)
     if e2 * e2 + w2 * p2 * p2 < err * err + w2 * perr * perr:
         return other, e2, p2, its
     return q, err, perr, its
@@ -414,18 +421,15 @@ def _solve_numerical(
     q = np.empty(arm.robot.nq)
     reached = np.empty(3)
     w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
-    err, perr, iterations, _, reached_pitch = solve_chain(
-        arm.chain,
+    err, perr, iterations, reached_pitch = _chain_solve(
+        arm,
         point,
         0.0 if pitch is None else pitch,
         w2,
         ref,
         arm.robot.neutral,
-        arm.atlas_q,
-        arm.atlas_p,
         _NUMERICAL_STARTS,
         tolerance,
-        PITCH_TOLERANCE,
         q,
         reached,
     )
@@ -433,21 +437,7 @@ def _solve_numerical(
     if pitch is not None and err > tolerance:
         # not met with the pitch: the target may still be reached at another (then "approximate")
         free = np.empty(arm.robot.nq)
-        e2, _, more, _, _ = solve_chain(
-            arm.chain,
-            point,
-            0.0,
-            0.0,
-            q,
-            arm.robot.neutral,
-            arm.atlas_q,
-            arm.atlas_p,
-            _NUMERICAL_STARTS,
-            tolerance,
-            PITCH_TOLERANCE,
-            free,
-            np.empty(3),
-        )
+        e2, _, more, _ = _chain_solve(arm, point, 0.0, 0.0, q, arm.robot.neutral, _NUMERICAL_STARTS, tolerance, free)
         iterations += more
         if e2 <= tolerance or e2 < err:
             q, err, pose = free, e2, None
