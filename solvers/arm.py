@@ -20,6 +20,7 @@ from armd.robots.geometry import Geometry
 from armd.robots.types import FloatArray
 
 from .arrays import Arm, Family
+from .atlas import Atlas, make_atlas
 from .geometric import arm_pose
 from .kinematics import Chain
 
@@ -47,8 +48,7 @@ class ArmState:
     chain: Chain  # the exact model, compiled
     weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
     exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
-    atlas_q: FloatArray  # (k, n) in-limit configurations [rad]
-    atlas_p: FloatArray  # (k, 3) their tool points [m]
+    atlas: Atlas  # in-limit configurations and their tool points, on a grid
     reach: float  # [m] the farthest atlas tool point from the base origin: beyond, a target is taken as far
     rolls_tool: bool  # the wrist roll moves the tool point (the closed form holds it at the seed's)
     buffers: Buffers
@@ -202,7 +202,7 @@ def _build(robot: Robot) -> ArmState:
             worst = max(worst, float(np.max(np.abs(out - robot.fk(q)))))
         exact = worst < 1e-12
     atlas_q = _atlas(robot)
-    atlas_p = np.ascontiguousarray([robot.fk(q) for q in atlas_q])
+    atlas = make_atlas(atlas_q, np.array([robot.fk(q) for q in atlas_q]))
     roll_model = None if g is None else g.roll_model
     return ArmState(
         robot,
@@ -210,9 +210,8 @@ def _build(robot: Robot) -> ArmState:
         chain_of(robot),
         1.0 / robot.limits.velocity,
         exact,
-        atlas_q,
-        atlas_p,
-        float(np.max(np.linalg.norm(atlas_p, axis=1))),
+        atlas,
+        float(np.max(np.linalg.norm(atlas.p, axis=1))),
         g is not None and g.roll is not None and roll_model is not None and roll_model.reach > 1e-9,
         Buffers(robot.nq),
     )

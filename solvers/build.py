@@ -23,6 +23,7 @@ COMPILED = {
         "activeset",
         "analytic",
         "arrays",
+        "atlas",
         "closest",
         "family",
         "geometric",

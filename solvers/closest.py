@@ -21,10 +21,11 @@ from armd.robots.types import FloatArray
 
 from .analytic import NONE, solve_one
 from .arrays import Arm, Family, from_family, to_family, view
+from .atlas import Atlas, nearest
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import entry, jit
 from .limits import limits_ok
-from .lm import MARGIN, family_cost, nearest, refine_family
+from .lm import MARGIN, family_cost, refine_family
 
 IntArray = NDArray[np.int64]
 
@@ -577,15 +578,14 @@ def _aim_yaw(f: Family, target: FloatArray, theta: FloatArray) -> None:
     theta[yj] = v
 
 
-@entry("Tuple((f8, f8, i8))(Arm, f8[:], f8, f8, f8[:], f8[:, :], f8[:, :], i8, f8[:])")
+@entry("Tuple((f8, f8, i8))(Arm, f8[:], f8, f8, f8[:], Atlas, i8, f8[:])")
 def closest_family(
     arm: Arm,
     target: FloatArray,
     pitch: float,
     w2: float,
     ref: FloatArray,
-    atlas_q: FloatArray,
-    atlas_p: FloatArray,
+    atlas: Atlas,
     n_atlas: int,
     q_out: FloatArray,
 ) -> tuple[float, float, int]:
@@ -593,7 +593,7 @@ def closest_family(
     ``pitch`` weighed by ``w2`` (0: any pitch), into ``q_out`` (the URDF's angles): the
     enumerated optimum where it applies (:func:`closest_box`, free pitch only); else the best of
     :func:`refine_family` from ``ref`` (if within limits) and the ``n_atlas`` atlas configurations
-    (the URDF's angles; tool points ``atlas_p`` in ``base``) whose tool points are nearest the
+    (the URDF's angles; tool points in ``base``) whose tool points are nearest the
     target, their joints outside the family kept at ``ref``'s: (error, pitch error, iterations)."""
     f, zero, offset = view(arm, ref)
     n = ref.shape[0]
@@ -621,9 +621,8 @@ def closest_family(
                 from_family(arm, zero, theta, q_out)
                 return err, 0.0, 0
     goal_pitch = pitch - offset
-    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points, by a linear scan
-    if n_atlas > 0:
-        nearest(atlas_p, target, order)
+    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points
+    nearest(atlas, target, order)
     # the starts' costs; a few steps from the promising ones; the best one to convergence
     family = np.zeros(n, dtype=np.bool_)
     for k in range(4):
@@ -639,7 +638,7 @@ def closest_family(
             if not limits_ok(starts[s], f, 0.0):
                 continue
         elif order[s - 1] >= 0:
-            to_family(arm, zero, atlas_q[order[s - 1]], starts[s])
+            to_family(arm, zero, atlas.q[order[s - 1]], starts[s])
             for i in range(n):
                 if not family[i]:
                     starts[s, i] = ref_f[i]

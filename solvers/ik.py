@@ -298,7 +298,7 @@ def _closest(
         has_wrist = bool(arm.arrays.family.J[3] >= 0)
         w2 = _PITCH_WEIGHT**2 if (pitch is not None and has_wrist) else 0.0
         aim = 0.0 if pitch is None else pitch
-        err, perr, its = closest_family(arm.arrays, point, aim, w2, ref, arm.atlas_q, arm.atlas_p, _ATLAS_STARTS, q)
+        err, perr, its = closest_family(arm.arrays, point, aim, w2, ref, arm.atlas, _ATLAS_STARTS, q)
         if not arm.exact:
             err, perr, its2 = refine_chain(arm.chain, point, aim, w2, q, 30, 0.4, 1e-12)
             its += its2
@@ -342,8 +342,7 @@ def _chain_solve(
         w2,
         ref,
         inside,
-        arm.atlas_q,
-        arm.atlas_p,
+        arm.atlas,
         starts,
         tolerance,
         PITCH_TOLERANCE,
@@ -433,6 +432,8 @@ def _solve_numerical(
         q,
         reached,
     )
+    if pitch is None and err <= tolerance:  # the common case, answered without another FK
+        return IKResult(OK, q, err, reached, point, wrap(reached_pitch), None, "numerical", (), iterations, None)
     pose: tuple[FloatArray, float] | None = (reached, wrap(reached_pitch))
     if pitch is not None and err > tolerance:
         # not met with the pitch: the target may still be reached at another (then "approximate")

@@ -43,6 +43,7 @@ COMPILED_MODULES = (
     "activeset",
     "arrays",
     "analytic",
+    "atlas",
     "closest",
     "family",
     "geometric",

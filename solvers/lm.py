@@ -33,6 +33,7 @@ from armd.robots.types import FloatArray
 
 from .activeset import solve_qp
 from .arrays import Family, family_pitch
+from .atlas import Atlas, nearest
 from .geometric import family_fk, wrap_angle
 from .jit import entry, jit
 from .kinematics import Chain, chain_jacobian, chain_pose, chain_pose_with, chain_work
@@ -46,6 +47,7 @@ POLISH = 1e-9  # ... from a start already within a micrometre (an idealised clos
 STEP = 1.0  # [rad] the numerical IK's trust region per step and joint
 START_DAMPING = 1e-5  # ... and its first damping (relative, as DAMPING)
 STALL = 0.2  # ... and it leaves a start whose cost falls by less than this fraction, twice in a row
+FINE = 0.1  # ... and iterates on to this fraction of the tolerance (a margin for the FK check)
 
 
 @jit
@@ -123,6 +125,27 @@ def _evaluate(
 
 
 @jit
+def lm_work(ch: Chain, n: int, kc: int) -> tuple:
+    """Scratch for :func:`levenberg_marquardt_with` (n joints, kc coupled limits): one per
+    solve, reused by each start's iteration (Numba allocates each array: some 40 ns apiece)."""
+    return (
+        np.empty(3),
+        np.empty((3, n)),
+        np.empty(n),
+        np.empty(n),
+        np.empty(n),
+        np.empty(kc),
+        np.empty(kc),
+        np.empty(n),
+        np.empty(n),
+        np.empty((n, n)),
+        np.empty((n, n)),
+        np.empty(n),
+        chain_work(ch, n),
+    )
+
+
+@jit
 def levenberg_marquardt(
     f: Family,
     ch: Chain,
@@ -137,35 +160,46 @@ def levenberg_marquardt(
     damping: float = DAMPING,
     stall: float = 0.0,
 ) -> tuple[float, float, int]:
+    """:func:`levenberg_marquardt_with` with scratch of its own."""
+    kc = ch.C.shape[0] if on_chain else f.C.shape[0]
+    work = lm_work(ch, q.shape[0], kc)
+    return levenberg_marquardt_with(f, ch, on_chain, target, pitch, w2, q, max_iter, step, tol, damping, stall, work)
+
+
+@jit
+def levenberg_marquardt_with(
+    f: Family,
+    ch: Chain,
+    on_chain: bool,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    q: FloatArray,
+    max_iter: int,
+    step: float,
+    tol: float,
+    damping: float,
+    stall: float,
+    scratch: tuple,
+) -> tuple[float, float, int]:
     """From ``q`` (within the model's limits), in place: (position error [m], pitch error [rad],
     iterations). ``w2 > 0`` adds the pitch task with that weight^2. Stops at ``tol`` (position
     [m] and pitch [rad]), when no step lowers the cost (a constrained optimum), when the error
     no longer falls by a billionth of itself, or (``stall`` > 0) when two steps in a row each
     lower the cost by less than that fraction of it (creeping toward an optimum pressed
-    against a limit: another start does better)."""
+    against a limit: another start does better). ``scratch``: :func:`lm_work`."""
     if on_chain:
         lower, upper, C, clo, chi = ch.lower, ch.upper, ch.C, ch.clo, ch.chi
     else:
         lower, upper, C, clo, chi = f.lower, f.upper, f.C, f.clo, f.chi
     n = q.shape[0]
-    p = np.empty(3)
-    Jac = np.empty((3, n))
-    row = np.zeros(n)
+    kc = C.shape[0]
+    p, Jac, row, lb, ub, cl, cu, dq, qn, H, Hd, g, work = scratch
+    row[:] = 0.0
     if not on_chain:  # the family's pitch: the sum of its pitch joints
         for k in range(1, 4):
             if f.J[k] >= 0:
                 row[f.J[k]] = 1.0
-    lb = np.empty(n)
-    ub = np.empty(n)
-    kc = C.shape[0]
-    cl = np.empty(kc)
-    cu = np.empty(kc)
-    dq = np.empty(n)
-    qn = np.empty(n)
-    H = np.empty((n, n))
-    Hd = np.empty((n, n))
-    g = np.empty(n)
-    work = chain_work(ch, n)
     cost, perr = _evaluate(f, ch, on_chain, q, target, pitch, w2, p, Jac, row, True, work)
     mu = -1.0  # set from the first Jacobian (Marquardt: relative to diag(J'J))
     nu = 2.0
@@ -319,24 +353,7 @@ def feasible(ch: Chain, q: FloatArray, inside: FloatArray, out: FloatArray) -> b
     return True
 
 
-@jit
-def nearest(points: FloatArray, target: FloatArray, order: NDArray[np.int64]) -> None:
-    """The indices of the ``len(order)`` rows of ``points`` nearest ``target``, nearest first."""
-    k_max = order.shape[0]
-    dist = np.full(k_max, np.inf)
-    for i in range(points.shape[0]):
-        d = (points[i, 0] - target[0]) ** 2 + (points[i, 1] - target[1]) ** 2 + (points[i, 2] - target[2]) ** 2
-        if d < dist[k_max - 1]:
-            k = k_max - 1
-            while k > 0 and dist[k - 1] > d:
-                dist[k] = dist[k - 1]
-                order[k] = order[k - 1]
-                k -= 1
-            dist[k] = d
-            order[k] = i
-
-
-@entry("Tuple((f8, f8, i8, i8, f8))(Chain, f8[:], f8, f8, f8[:], f8[:], f8[:, :], f8[:, :], i8, f8, f8, f8[:], f8[:])")
+@entry("Tuple((f8, f8, i8, i8, f8))(Chain, f8[:], f8, f8, f8[:], f8[:], Atlas, i8, f8, f8, f8[:], f8[:])")
 def solve_chain(
     ch: Chain,
     target: FloatArray,
@@ -344,8 +361,7 @@ def solve_chain(
     w2: float,
     ref: FloatArray,
     inside: FloatArray,
-    atlas_q: FloatArray,
-    atlas_p: FloatArray,
+    atlas: Atlas,
     n_atlas: int,
     tol: float,
     pitch_tol: float,
@@ -356,14 +372,15 @@ def solve_chain(
     ``ref`` (made feasible toward it from ``inside``, a configuration within every limit), then
     from the ``n_atlas`` atlas configurations whose tool points are nearest the target,
     :data:`FIRST_STEPS` steps each, until one reaches ``tol`` [m] (and ``pitch_tol`` [rad] with
-    ``w2 > 0``), then on to a thousandth of ``tol``; else the best of them iterated to
+    ``w2 > 0``), then on to :data:`FINE` of ``tol``; else the best of them iterated to
     convergence. Into ``q_out`` and its tool point into ``reached``: (position error, pitch
     error, iterations, starts used, tool pitch [rad])."""
     n = ref.shape[0]
     f = no_family()
-    fine = max(tol * 1e-3, 1e-12)  # [m] where the iteration stops: a thousandth of the tolerance
+    fine = max(tol * FINE, 1e-12)  # [m] where the iteration stops, inside the tolerance
     order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points (after the seed)
     q = np.empty(n)
+    work = lm_work(ch, n, ch.C.shape[0])
     best, best_err, best_perr = 1e300, math.inf, math.inf
     iters = 0
     used = 0
@@ -372,14 +389,14 @@ def solve_chain(
             if not feasible(ch, ref, inside, q):
                 continue
         else:
-            if s == 1:  # the seed did not do: the atlas, by a linear scan (some 10 us)
-                nearest(atlas_p, target, order)
+            if s == 1:  # the seed did not do: the atlas
+                nearest(atlas, target, order)
             if order[s - 1] < 0:
                 continue
-            q[:] = atlas_q[order[s - 1]]
+            q[:] = atlas.q[order[s - 1]]
         used += 1
-        err, perr, it = levenberg_marquardt(
-            f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING, STALL
+        err, perr, it = levenberg_marquardt_with(
+            f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING, STALL, work
         )
         iters += it
         score = err * err + w2 * perr * perr
@@ -388,13 +405,17 @@ def solve_chain(
             q_out[:] = q
         if err <= tol and (w2 == 0.0 or perr <= pitch_tol):  # met: a few more steps take it to ``fine``
             if err > fine:
-                best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 10, STEP, fine)
+                best_err, best_perr, it = levenberg_marquardt_with(
+                    f, ch, True, target, pitch, w2, q_out, 10, STEP, fine, DAMPING, 0.0, work
+                )
                 iters += it
-            return best_err, best_perr, iters, used, chain_pose(ch, q_out, reached)
+            return best_err, best_perr, iters, used, chain_pose_with(ch, q_out, reached, work[-1])
     if best < 1e300:  # none met it: the best start's iteration to convergence
-        best_err, best_perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q_out, 200, STEP, 1e-12)
+        best_err, best_perr, it = levenberg_marquardt_with(
+            f, ch, True, target, pitch, w2, q_out, 200, STEP, 1e-12, DAMPING, 0.0, work
+        )
         iters += it
-    return best_err, best_perr, iters, used, chain_pose(ch, q_out, reached)
+    return best_err, best_perr, iters, used, chain_pose_with(ch, q_out, reached, work[-1])
 
 
 @entry("void(Chain, f8[:, :], i8, f8[:], f8, f8, f8, f8, f8[:], b1[:], i8[:])")

@@ -29,7 +29,7 @@ KINDS = ("beyond reach", "near the yaw axis", "above or below", "behind the base
 
 def _reach(arm: robots.Robot) -> float:
     """The largest distance of the tool from the base origin over the atlas [m]."""
-    return float(np.max(np.linalg.norm(_arm(arm).atlas_p, axis=1)))
+    return float(np.max(np.linalg.norm(_arm(arm).atlas.p, axis=1)))
 
 
 def _candidate(kind: str, reach: float, rng: np.random.Generator) -> np.ndarray:
@@ -191,8 +191,8 @@ def test_desk4_closest_point_is_never_worse_than_the_iteration(targets: list[np.
     for t in targets:
         err, _ = _enumerated(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi, t, ARM.neutral)
         assert err >= 0.0
-        near = np.argsort(np.linalg.norm(a.atlas_p - t, axis=1))[:6]
-        starts = a.atlas_q[np.concatenate([near, rng.choice(len(a.atlas_q), 6, replace=False)])]
+        near = np.argsort(np.linalg.norm(a.atlas.p - t, axis=1))[:6]
+        starts = a.atlas.q[np.concatenate([near, rng.choice(len(a.atlas.q), 6, replace=False)])]
         other = _iterated(fp.P, fp.J, fp.lower, fp.upper, fp.C, fp.clo, fp.chi, t, starts)
         assert err <= other + 1e-9, (t.tolist(), err, other)
         beaten += err < other - 1e-9
@@ -271,7 +271,7 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
         q = np.empty(3)
         assert a.arrays is not None
         arrays = a.arrays._replace(family=_family(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi))
-        _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.atlas_q, a.atlas_p, 3, q)
+        _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.atlas, 3, q)
         assert its > 0
     wrist = _arm(robots.load("insomniac")).family
     assert wrist is not None

@@ -179,8 +179,8 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
         assert arm.limits.contains(q, tol=0.0)
         assert math.isclose(err, float(np.linalg.norm(arm.fk(q) - target)), rel_tol=1e-12)
         assert r.iterations == 0 and math.isclose(r.position_error, err, rel_tol=1e-12)
-        for k in rng.choice(len(a.atlas_q), 12, replace=False):
-            q0 = a.atlas_q[k].copy()
+        for k in rng.choice(len(a.atlas.q), 12, replace=False):
+            q0 = a.atlas.q[k].copy()
             other, _, _ = refine_family(fp, target, 0.0, 0.0, q0, 300, 0.4, 1e-12)
             assert err <= other + 1e-9, (target.tolist(), err, other)
         if used >= 40:
