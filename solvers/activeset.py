@@ -181,14 +181,19 @@ def solve_qp(
     cl: FloatArray,
     cu: FloatArray,
     x: FloatArray,
+    K0: FloatArray,
+    r0: FloatArray,
 ) -> bool:
     """Solve into ``x`` (n,), starting from x = 0 (which must be feasible). True on success.
+    ``K0`` (n, n) and ``r0`` (n,): scratch (the caller's, made once, not per step).
 
     First the unconstrained minimiser: where it keeps every bound (most steps of an iteration
     that is not pressed against a limit) it is the answer, and no working set is built."""
     n = H.shape[0]
-    K0 = H.copy()
-    r0 = -g
+    for i in range(n):
+        r0[i] = -g[i]
+        for j in range(n):
+            K0[i, j] = H[i, j]
     if _gauss(K0, r0, x, n) and _inside(x, lb, ub, C, cl, cu):
         return True
     if C.shape[0] == 0:

@@ -36,7 +36,7 @@ from .arrays import Family, family_pitch
 from .atlas import Atlas, nearest
 from .geometric import family_fk, wrap_angle
 from .jit import entry, jit
-from .kinematics import Chain, chain_jacobian, chain_pose, chain_pose_with, chain_work
+from .kinematics import Chain, chain_jacobian, chain_pose_with, chain_work
 from .limits import limits_ok
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
@@ -141,6 +141,8 @@ def lm_work(ch: Chain, n: int, kc: int) -> tuple:
         np.empty((n, n)),
         np.empty((n, n)),
         np.empty(n),
+        np.empty((n, n)),
+        np.empty(n),
         chain_work(ch, n),
     )
 
@@ -194,7 +196,7 @@ def levenberg_marquardt_with(
         lower, upper, C, clo, chi = f.lower, f.upper, f.C, f.clo, f.chi
     n = q.shape[0]
     kc = C.shape[0]
-    p, Jac, row, lb, ub, cl, cu, dq, qn, H, Hd, g, work = scratch
+    p, Jac, row, lb, ub, cl, cu, dq, qn, H, Hd, g, K0, r0, work = scratch
     row[:] = 0.0
     if not on_chain:  # the family's pitch: the sum of its pitch joints
         for k in range(1, 4):
@@ -237,7 +239,7 @@ def levenberg_marquardt_with(
             Hd[:, :] = H
             for i in range(n):
                 Hd[i, i] += mu
-            if not solve_qp(Hd, g, lb, ub, C, cl, cu, dq):
+            if not solve_qp(Hd, g, lb, ub, C, cl, cu, dq, K0, r0):
                 mu *= nu
                 nu *= 2.0
                 continue
@@ -438,14 +440,17 @@ def refine_branches(
     pitch ``pitch`` with ``w2 > 0``) into ``kept``, the iterations into ``iterations[0]``."""
     f = no_family()
     p = np.empty(3)
+    work = lm_work(ch, qs.shape[1], ch.C.shape[0])
     iterations[0] = 0
     for r in range(m):
         q = qs[r]
-        reached = chain_pose(ch, q, p)
+        reached = chain_pose_with(ch, q, p, work[-1])
         err = math.sqrt((p[0] - target[0]) ** 2 + (p[1] - target[1]) ** 2 + (p[2] - target[2]) ** 2)
         perr = abs(wrap_angle(pitch - reached)) if w2 > 0.0 else 0.0
         if err > tol or perr > pitch_tol:
-            err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12, POLISH)
+            err, perr, it = levenberg_marquardt_with(
+                f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12, POLISH, 0.0, work
+            )
             iterations[0] += it
         errs[r] = err
         kept[r] = err <= tol and perr <= pitch_tol
