@@ -361,6 +361,11 @@ def test_a_host_faster_than_the_link_falls_behind() -> None:
     assert all(b > a for a, b in itertools.pairwise(backlog)), backlog
 
 
+JITTER = (
+    0.015  # [s] how much later than due a reply may be read on a loaded 2-core host (a test's thread waits its turn)
+)
+
+
 @pytest.mark.parametrize(("query", "size"), [(b"Q\r", 1), (b"QP0\r", 1), (b"VER\r", 15)])
 def test_query_delay_delays_the_reply(query: bytes, size: int) -> None:
     delays = {}
@@ -375,8 +380,9 @@ def test_query_delay_delays_the_reply(query: bytes, size: int) -> None:
             assert len(ser.read(size)) == size
             delays[query_delay] = time.monotonic() - written
     link = (len(query) + size) * byte_time(115200)
-    assert delays[0.0] == pytest.approx(link, abs=0.005)
-    assert delays[0.05] == pytest.approx(0.05 + link, abs=0.005)
+    # never sooner than the link and the delay allow; a busy host only adds (up to JITTER)
+    assert link - 0.001 <= delays[0.0] <= link + JITTER
+    assert 0.05 + link - 0.001 <= delays[0.05] <= 0.05 + link + JITTER
 
 
 def test_replies_travel_at_the_link_rate() -> None:
