@@ -126,7 +126,7 @@ def _evaluate(
 
 @jit
 def lm_work(ch: Chain, n: int, kc: int) -> tuple:
-    """Scratch for :func:`levenberg_marquardt_with` (n joints, kc coupled limits): one per
+    """Scratch for :func:`levenberg_marquardt` (n joints, kc coupled limits): one per
     solve, reused by each start's iteration (Numba allocates each array: some 40 ns apiece)."""
     return (
         np.empty(3),
@@ -149,27 +149,6 @@ def lm_work(ch: Chain, n: int, kc: int) -> tuple:
 
 @jit
 def levenberg_marquardt(
-    f: Family,
-    ch: Chain,
-    on_chain: bool,
-    target: FloatArray,
-    pitch: float,
-    w2: float,
-    q: FloatArray,
-    max_iter: int,
-    step: float,
-    tol: float,
-    damping: float = DAMPING,
-    stall: float = 0.0,
-) -> tuple[float, float, int]:
-    """:func:`levenberg_marquardt_with` with scratch of its own."""
-    kc = ch.C.shape[0] if on_chain else f.C.shape[0]
-    work = lm_work(ch, q.shape[0], kc)
-    return levenberg_marquardt_with(f, ch, on_chain, target, pitch, w2, q, max_iter, step, tol, damping, stall, work)
-
-
-@jit
-def levenberg_marquardt_with(
     f: Family,
     ch: Chain,
     on_chain: bool,
@@ -317,7 +296,9 @@ def refine_family(
     f: Family, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
 ) -> tuple[float, float, int]:
     """:func:`levenberg_marquardt` on the family's formula (the family's angles and frame)."""
-    return levenberg_marquardt(f, no_chain(), False, target, pitch, w2, q, max_iter, step, tol)
+    ch = no_chain()
+    work = lm_work(ch, q.shape[0], f.C.shape[0])
+    return levenberg_marquardt(f, ch, False, target, pitch, w2, q, max_iter, step, tol, DAMPING, 0.0, work)
 
 
 @entry("Tuple((f8, f8, i8))(Chain, f8[:], f8, f8, f8[:], i8, f8, f8)")
@@ -325,7 +306,8 @@ def refine_chain(
     ch: Chain, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
 ) -> tuple[float, float, int]:
     """:func:`levenberg_marquardt` on the exact chain (the URDF's angles, ``base``)."""
-    return levenberg_marquardt(no_family(), ch, True, target, pitch, w2, q, max_iter, step, tol)
+    work = lm_work(ch, q.shape[0], ch.C.shape[0])
+    return levenberg_marquardt(no_family(), ch, True, target, pitch, w2, q, max_iter, step, tol, DAMPING, 0.0, work)
 
 
 @jit
@@ -397,7 +379,7 @@ def solve_chain(
                 continue
             q[:] = atlas.q[order[s - 1]]
         used += 1
-        err, perr, it = levenberg_marquardt_with(
+        err, perr, it = levenberg_marquardt(
             f, ch, True, target, pitch, w2, q, FIRST_STEPS, STEP, fine, START_DAMPING, STALL, work
         )
         iters += it
@@ -407,13 +389,13 @@ def solve_chain(
             q_out[:] = q
         if err <= tol and (w2 == 0.0 or perr <= pitch_tol):  # met: a few more steps take it to ``fine``
             if err > fine:
-                best_err, best_perr, it = levenberg_marquardt_with(
+                best_err, best_perr, it = levenberg_marquardt(
                     f, ch, True, target, pitch, w2, q_out, 10, STEP, fine, DAMPING, 0.0, work
                 )
                 iters += it
             return best_err, best_perr, iters, used, chain_pose_with(ch, q_out, reached, work[-1])
     if best < 1e300:  # none met it: the best start's iteration to convergence
-        best_err, best_perr, it = levenberg_marquardt_with(
+        best_err, best_perr, it = levenberg_marquardt(
             f, ch, True, target, pitch, w2, q_out, 200, STEP, 1e-12, DAMPING, 0.0, work
         )
         iters += it
@@ -448,9 +430,7 @@ def refine_branches(
         err = math.sqrt((p[0] - target[0]) ** 2 + (p[1] - target[1]) ** 2 + (p[2] - target[2]) ** 2)
         perr = abs(wrap_angle(pitch - reached)) if w2 > 0.0 else 0.0
         if err > tol or perr > pitch_tol:
-            err, perr, it = levenberg_marquardt_with(
-                f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12, POLISH, 0.0, work
-            )
+            err, perr, it = levenberg_marquardt(f, ch, True, target, pitch, w2, q, 100, 0.4, 1e-12, POLISH, 0.0, work)
             iterations[0] += it
         errs[r] = err
         kept[r] = err <= tol and perr <= pitch_tol
