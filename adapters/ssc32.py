@@ -4,24 +4,30 @@
 any pyserial URL (``/dev/ttyUSB0``, a pseudo-terminal, ``socket://host:port``); the baud rate
 defaults to the arm's ``[controller] baud`` (the SSC-32U leaves the factory at 9600).
 
-The board moves each servo linearly from where it is to a group move's pulse in ``T``
-milliseconds, then holds; a new group move replaces the running one from where the servos
-are. The adapter keeps a model of that motion (where the board is heading, from where, until
-when, as the board interpolates it) and streams a trajectory one group move a period:
+The board moves a servo linearly from where it is toward a command's pulse, at the command's
+speed ``S`` [us/s] (or so as to take ``T`` ms), then holds; a new command replaces the running
+one from where the servo is, and the servos of one command start and end together. The
+adapter keeps a model of that motion (per joint: where the board is heading, from where, until
+when, as the board interpolates it) and streams a trajectory one line a period, a command per
+group of servos that share a joint (a mirrored pair is one command), each padded with spaces to
+a fixed width so that every command reaches the board at the same point of every line:
 
-- Each move lasts ``lead`` and a period, and the next one replaces it a period in: the board
-  is never idle while the adapter is on time, and a late adapter (up to ``lead``) only
-  lengthens the move in hand. Its speed, per joint, is the plan's average over the move
-  ahead, from where the board is (a board off the plan converges on it), within one period's
-  change of speed of the move in hand (every acceleration limit, over the time since the
-  previous change) and within every velocity limit, whole-microsecond pulses allowed for; its
-  target is where that speed leads, kept inside the position limits. The plan's clock
-  advances with the board's, by at most ``MAX_SLIP`` periods a move: a late adapter, a
-  stalled process or a slow link re-time the rest of the trajectory, slower, from where the
-  board is, ramping up from rest when the board had stopped; nothing catches up by jumping.
-  The last move ends at the trajectory's end, once the board may stop there within the
-  limits; a stop never reverses a joint.
-- Bandwidth: each move's bytes, times the moves per second, against the link (10 bits a byte
+- Each servo gets a speed and a target a span ahead (``lead`` and a period), and the next line
+  replaces it a period in: the board is never idle while the adapter is on time, and a late
+  adapter (up to ``lead``) only lengthens the move in hand. A speed, not a time: a command
+  that reaches the board late (the host's USB or terminal holding it a few milliseconds)
+  changes the servo's speed late, not by more; a move timed by ``T`` would cover what is left
+  of its way in ``T``, faster or slower by the distance lost. The speed, per joint, is the
+  plan's average over the move ahead, from where the board is (a board off the plan converges
+  on it), within one period's change of speed of the move in hand (every acceleration limit,
+  over the time since the previous change) and within every velocity limit, whole
+  microseconds allowed for; its target is where that speed leads, kept inside the position
+  limits. The plan's clock advances with the board's, by at most ``MAX_SLIP`` periods a line:
+  a late adapter, a stalled process or a slow link re-time the rest of the trajectory,
+  slower, from where the board is, ramping up from rest when the board had stopped; nothing
+  catches up by jumping. The last line ends at the trajectory's end, once the board may stop
+  there within the limits; a stop never reverses a joint.
+- Bandwidth: each line's bytes, times the lines per second, against the link (10 bits a byte
   at the baud rate). A trajectory sampled faster than the link carries is streamed every
   ``stride``-th sample (at most 60% of the link: the rest is for the checks); one that would
   need moves further apart than ``MAX_PERIOD`` is refused before any pulse is sent, naming the
@@ -34,7 +40,7 @@ when, as the board interpolates it) and streams a trajectory one group move a pe
 Start-up: ``VER`` must answer. Then ``QP``: a board already outputting pulses on every channel
 (the adapter restarted, the board stayed powered) is adopted as it is, with no pulse change. A
 board just powered outputs none, and a hobby servo's position is unknown until its first
-pulse: its first command is a jump, at the servo's own speed, whatever ``T`` says. The adapter
+pulse: its first command is a jump, at the servo's own speed, whatever ``S`` or ``T`` say. The adapter
 says so in its log and commands the pose the arm was left at (the last commanded pose, kept
 per arm in ``state_dir`` when a trajectory ends and when the adapter stops), else neutral;
 the state it reports says ``source: "commanded"`` (hobby servos report no position).
@@ -77,12 +83,31 @@ MAX_SLIP = 1.5  # periods: the most the plan's clock advances between two moves 
 RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
 
 
-def _on_piece(p0: FloatArray, t0: float, p1: FloatArray, t1: float, t: float) -> tuple[FloatArray, FloatArray]:
-    """On the linear piece from ``p0`` at ``t0`` to ``p1`` at ``t1``, held after: position and speed at ``t``."""
-    if t >= t1 or t1 <= t0:
-        return p1.copy(), np.zeros(len(p1))
-    v = (p1 - p0) / (t1 - t0)
-    return p0 + v * (max(t, t0) - t0), v
+SPEED_MAX = 65535  # [us/s] the largest S the adapter writes (the board's default speed: no limit)
+
+
+def _on_piece(
+    p0: FloatArray, t0: FloatArray, p1: FloatArray, t1: FloatArray, t: FloatArray | float
+) -> tuple[FloatArray, FloatArray]:
+    """Per joint, on the linear piece from ``p0`` at ``t0`` to ``p1`` at ``t1``, held after:
+    position and speed at ``t`` (each joint's times its own)."""
+    span = t1 - t0
+    on = (span > 0.0) & (t < t1)
+    v = np.where(on, (p1 - p0) / np.where(span > 0.0, span, 1.0), 0.0)
+    return np.where(on, p0 + v * np.maximum(t - t0, 0.0), p1), v
+
+
+def _groups(M: FloatArray) -> list[list[int]]:
+    """The actuators that must move as one group move (those that share a joint: a mirrored
+    pair, a linkage), as lists of rows of ``M``, in order."""
+    rows = list(range(M.shape[0]))
+    group = rows[:]
+    for j in range(M.shape[1]):
+        linked = [r for r in rows if M[r, j]]
+        for r in linked[1:]:
+            old, new = group[r], group[linked[0]]
+            group = [new if g == old else g for g in group]
+    return [[r for r in rows if group[r] == g] for g in sorted(set(group), key=group.index)]
 
 
 def state_dir_default() -> Path:
@@ -142,12 +167,23 @@ class SSC32Adapter(SerialAdapter):
                 for j in range(robot.nq)
             ]
         )
-        # the board's motion, as the model has it: linear from _p0 at _t0 to _p1 at _t1, then held
+        # one command a group of servos (those that share a joint), each padded to a fixed width:
+        # every group's carriage return reaches the board at the same point of every line
+        self._groups = _groups(amap.M)
+        self._widths = [sum(len(f"#{self.channels[r]}P2500S{SPEED_MAX}") for r in g) + 1 for g in self._groups]
+        self._cr_at = np.cumsum(self._widths)  # [bytes] where each group's command ends in a line
+        group_of = {r: k for k, g in enumerate(self._groups) for r in g}
+        self._joint_group = np.array([group_of[int(np.flatnonzero(amap.M[:, j])[0])] for j in range(robot.nq)])
+        # the board's motion, as the model has it: per joint, linear from _p0 at _since to _p1 at _until, then held
         now = time.monotonic()
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
-        self._t0 = self._t1 = now
+        self._since = self._until = np.full(robot.nq, now)
+        self._t_line = now  # [s] when the last line's last command reached the board
+        self._t_end = now  # [s] when the move in hand ends, as it was aimed (a span after _t_line)
         self._link_free = now  # [s] when the link has carried everything written so far
-        self._pieces: collections.deque[tuple[FloatArray, float, FloatArray, float]] = collections.deque(maxlen=256)
+        self._pieces: collections.deque[tuple[FloatArray, FloatArray, FloatArray, FloatArray]] = collections.deque(
+            maxlen=256
+        )
         self._tau = 0.0  # [s] the plan's time the running move was aimed from
         self._rhythm = now  # [s] the earliest the next move of a trajectory should reach the board
         self._settled = True  # the board heads for the trajectory's end slowly enough to stop there
@@ -209,7 +245,7 @@ class SSC32Adapter(SerialAdapter):
             self.robot.name,
             where,
         )
-        self._send(amap.commands(q), None)
+        self._jump(amap.commands(q))
         if not np.all(self._query_pulses() > 0):  # (asked after the move: answered once the board has it)
             self.serial.close()
             raise ControllerFault(f"the SSC-32 on {self.port} did not take its first command")
@@ -280,85 +316,136 @@ class SSC32Adapter(SerialAdapter):
             raise ControllerFault(f"SSC-32 on {self.port} does not answer QP ({reply!r})")
         return np.array([10.0 * b for b in reply])
 
-    def _line(self, pulses: np.ndarray, duration_ms: int | None) -> bytes:
-        """A group move of every channel: ``#<ch>P<pw>...[T<ms>]\\r``."""
+    def _jump(self, pulses: np.ndarray) -> None:
+        """A group move of every channel with no speed and no time: ``#<ch>P<pw>...\\r``, a jump
+        (the start-up's first command: the servos' positions are unknown until then)."""
         line = "".join(f"#{ch}P{int(pw)}" for ch, pw in zip(self.channels, pulses.tolist(), strict=True))
-        if duration_ms is not None:
-            line += f"T{duration_ms}"
-        return (line + "\r").encode()
+        self._write((line + "\r").encode())
 
-    def _send(self, pulses: np.ndarray, duration_ms: int | None) -> None:
-        self._write(self._line(pulses, duration_ms))
+    def _speed_line(self, pulses: np.ndarray, speeds: np.ndarray) -> bytes:
+        """The stream's line: per group of servos, ``#<ch>P<pw>S<spd>...\\r``, each padded in front
+        with spaces (which the board ignores) to its fixed width."""
+        out = []
+        for g, width in zip(self._groups, self._widths, strict=True):
+            text = "".join(f"#{self.channels[r]}P{int(pulses[r])}S{int(speeds[r])}" for r in g) + "\r"
+            out.append(text.rjust(width))
+        return "".join(out).encode()
 
     def _line_bytes(self) -> int:
-        """The bytes of one group move of every channel (the longest form)."""
-        return sum(len(f"#{ch}P2500") for ch in self.channels) + len("T65535\r")
+        """The bytes of one line of the stream (every group of servos, at its fixed width)."""
+        return int(self._cr_at[-1])
 
     # -- the model of the board ------------------------------------------------------------
 
     def _hold_at(self, q: FloatArray) -> None:
         """The model: the board holds ``q`` from now on (what came before is forgotten)."""
+        now = time.monotonic()
         self._p0, self._p1 = q.copy(), q.copy()
-        self._t0 = self._t1 = time.monotonic()
+        self._since, self._until = np.full(self.robot.nq, now), np.full(self.robot.nq, now)
+        self._t_line = self._t_end = now
         self._pieces.clear()
-        self._pieces.append((self._p0, self._t0, self._p1, self._t1))
+        self._pieces.append((self._p0, self._since, self._p1, self._until))
 
-    def _at(self, t: float) -> tuple[FloatArray, FloatArray]:
-        """Where the board is at time ``t`` [s] (now or later), and how fast it moves [rad/s]."""
-        return _on_piece(self._p0, self._t0, self._p1, self._t1, t)
+    def _at(self, t: float | FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Where the board is at time ``t`` [s] (per joint, if an array), and how fast it moves
+        [rad/s]: each joint on the last piece it had started by then."""
+        p, v = _on_piece(self._p0, self._since, self._p1, self._until, t)
+        early = t < self._since  # (a joint whose command of the last line has not arrived by then)
+        if np.any(early) and len(self._pieces) > 1:
+            p0, t0, p1, t1 = self._pieces[-2]
+            pe, ve = _on_piece(p0, t0, p1, t1, t)
+            p, v = np.where(early, pe, p), np.where(early, ve, v)
+        return p, v
 
     def _was_at(self, t: float) -> FloatArray:
         """Where the board was at time ``t`` [s], which may be a few pieces ago."""
+        out = np.full(self.robot.nq, np.nan)
         for p0, t0, p1, t1 in reversed(self._pieces):
-            if t >= t0:
-                return _on_piece(p0, t0, p1, t1, t)[0]
-        return self._pieces[0][0].copy() if self._pieces else self._at(t)[0]
+            here = np.isnan(out) & (t >= t0)
+            if np.any(here):
+                out = np.where(here, _on_piece(p0, t0, p1, t1, t)[0], out)
+            if not np.any(np.isnan(out)):
+                return out
+        first = self._pieces[0][0] if self._pieces else self._p0
+        return np.where(np.isnan(out), first, out)
 
     def _stream(self, cmd: Command, first: bool, period: float, lead: float) -> None:
-        """Send the next group move of ``cmd`` (:meth:`_aim`), timed for when the board will
-        have it: if this thread was held up meanwhile, aimed again."""
-        ms = max(1, round((lead + period) * 1000.0))  # the next move replaces it a period in: a lead to spare
-        arrival = max(time.monotonic(), self._link_free) + self._line_bytes() * 10.0 / self.baud
-        for _ in range(3):
-            x, tau, final = self._aim(cmd, arrival, first, period, ms / 1000.0)
-            pulses = self.robot.actuators.commands(x)
-            line = self._line(pulses, ms)
-            actual = max(time.monotonic(), self._link_free) + len(line) * 10.0 / self.baud
-            if abs(actual - arrival) <= ARRIVAL_TOL:
+        """Send the next line of ``cmd`` (:meth:`_aim`), timed for when the board will have each
+        of its commands: if this thread was held up meanwhile, aimed again.
+
+        Each servo gets a speed ``S`` and a target a span ahead: the board moves it at that
+        speed from wherever it is when the command arrives, so that a command that reaches it a
+        little late changes its speed a little late, by no more than was aimed (a move timed by
+        ``T`` would instead cover what is left of its way in ``T``: faster or slower by the
+        distance lost)."""
+        span = lead + period  # [s] the next line replaces this one a period in: a lead to spare
+        byte = 10.0 / self.baud
+        amap = self.robot.actuators
+        start = max(time.monotonic(), self._link_free)
+        for _ in range(3):  # everything computed before the line's time is checked, then written at once
+            arrivals = start + self._cr_at * byte  # [s] per group: when its carriage return arrives
+            t0 = arrivals[self._joint_group]
+            x, v, tau, final = self._aim(cmd, t0, float(arrivals[-1]), first, period, span)
+            p0 = self._at(t0)[0]
+            here = amap.command_values(p0)  # [us] each servo where its command finds it
+            want = amap.command_values(x)  # [us] where its speed leads in the span
+            rate = np.abs(amap.command_values(v) - amap.command_values(np.zeros_like(v)))  # [us/s] as aimed
+            speeds = np.clip(np.rint(rate), 1, SPEED_MAX)  # (S0 would be no limit: a jump)
+            pulses = amap.commands(x)
+            if not final:  # a target rounded away from the servo: not reached before the span is over
+                away = np.where(want > here, np.ceil(want - 1e-9), np.floor(want + 1e-9)).astype(np.int64)
+                if self._within(amap.joints_from_commands(away, tol=np.inf)):
+                    pulses = away
+            line = self._speed_line(pulses, speeds)
+            actual = max(time.monotonic(), self._link_free)
+            if abs(actual - start) <= ARRIVAL_TOL:
                 break
-            arrival = actual + ARRIVAL_TOL  # (the time to aim again)
-        written = time.monotonic()
-        arrival = max(written, self._link_free) + len(line) * 10.0 / self.baud
-        p0 = self._at(arrival)[0]
+            start = actual + ARRIVAL_TOL  # (the time to aim again)
         self._write(line)
-        target = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
-        self._p0, self._t0, self._p1, self._t1 = p0, arrival, target, arrival + ms / 1000.0
-        self._pieces.append((self._p0, self._t0, self._p1, self._t1))
+        # held up between the check and the write (preempted, stopped): the board has the line
+        # later, no sooner than the write returned (as _write counts it); the model says so, and
+        # the next line keeps a period from then
+        sent = self._link_free - len(line) * byte
+        if sent > start + ARRIVAL_TOL:
+            log.debug("%s: a line went out %.1f ms later than aimed", self.robot.name, (sent - start) * 1e3)
+            arrivals = sent + self._cr_at * byte
+            t0 = arrivals[self._joint_group]
+            p0 = self._at(t0)[0]
+            here = amap.command_values(p0)
+        way = np.abs(pulses - here)
+        # the board: each group starts and ends together, taking as long as its slowest servo needs
+        lasts = np.array([max(float(way[r] / speeds[r]) for r in g) for g in self._groups])
+        target = amap.joints_from_commands(pulses, tol=np.inf)
+        self._p0, self._since, self._p1, self._until = p0, t0, target, t0 + lasts[self._joint_group]
+        self._pieces.append((self._p0, self._since, self._p1, self._until))
         self._tau = tau
-        self._rhythm = arrival + period  # the next move arrives no sooner: no piece shorter than a period
+        self._t_line, self._t_end = float(arrivals[-1]), float(arrivals[-1]) + span
+        self._rhythm = self._t_line + period  # the next line arrives no sooner: no piece shorter than a period
         self._settled = final
 
     def _aim(
-        self, cmd: Command, arrival: float, first: bool, period: float, span: float
-    ) -> tuple[FloatArray, float, bool]:
-        """A group move the board starts at ``arrival`` [s] and that lasts ``span`` [s]: its
-        target [rad], the plan's time it was aimed from [s], and whether it is the last one
-        (it ends at the trajectory's end, slowly enough to stop there).
+        self, cmd: Command, arrival: FloatArray, line: float, first: bool, period: float, span: float
+    ) -> tuple[FloatArray, FloatArray, float, bool]:
+        """The targets [rad] of a line whose commands reach the board at ``arrival`` [s, per
+        joint] (the line's last one at ``line``), each a speed [rad/s] held for ``span`` [s];
+        the speeds; the plan's time it was aimed from [s]; and whether it is the last one (it
+        ends at the trajectory's end, slowly enough to stop there).
 
-        Each joint's speed is the plan's average over the move ahead, from where the board
-        is (so a board ahead of or behind the plan converges on it), within one period's
-        change of speed of the move in hand (the acceleration limit, over the time since the
+        Each joint's speed is the plan's average over the move ahead, from where the board is
+        (so a board ahead of or behind the plan converges on it), within one period's change
+        of speed of the move in hand (the acceleration limit, over the time since the
         previous change) and within the velocity limit; the target is where that speed
         leads in ``span``, kept inside the position limits. The plan's clock advances with
-        the board's, by at most ``MAX_SLIP`` periods a move: a late move re-times the rest
+        the board's, by at most ``MAX_SLIP`` periods a line: a late line re-times the rest
         of the trajectory, slower, from where the board is.
         """
         p0, v0 = self._at(arrival)
-        tau = 0.0 if first else self._tau + min(arrival - self._t0, MAX_SLIP * period)
-        # [rad/s] how far a speed may come out from what is aimed: whole-microsecond pulses, and a
-        # start up to ARRIVAL_TOL from when it is aimed for (the board a little farther on, or not as far)
-        rounding = (self._half_pulse + np.abs(v0) * ARRIVAL_TOL) / span
-        c = np.maximum(self._amax * min(period, max(arrival - self._t0, 1e-3)) - rounding, 0.0)
+        tau = 0.0 if first else self._tau + min(line - self._t_line, MAX_SLIP * period)
+        # [rad/s] how far a speed may come out from what is aimed: a whole microsecond a second
+        rounding = self._half_pulse
+        # each joint's last change of speed: its last command's arrival, or its target reached (a stop)
+        changed = np.where(self._until <= arrival, self._until, self._since)
+        c = np.maximum(self._amax * np.minimum(period, np.maximum(arrival - changed, 1e-3)) - rounding, 0.0)
         goal = self.robot.actuators.joints_from_commands(cmd.commands[-1], tol=np.inf)  # (as the board has it)
         if cmd.kind == "stop":  # a joint already past the stop's end stays where it is: a stop never reverses
             way = cmd.position[-1] - cmd.position[0]
@@ -368,13 +455,19 @@ class SSC32Adapter(SerialAdapter):
             if np.all(np.abs(d) <= self._amax * period * span * (1 + 1e-9)) and np.all(
                 np.abs(d / span - v0) <= c * (1 + 1e-9)
             ):
-                return goal.copy(), tau, True
-        ahead = cmd.sample_at(tau + span)[0]
+                return goal.copy(), d / span, tau, True
+        # each joint aims where the plan is a span after its own command arrives
+        shift = arrival - line
+        ahead = np.empty(self.robot.nq)
+        for s in np.unique(shift):
+            at = shift == s
+            ahead[at] = cmd.sample_at(tau + float(s) + span)[0][at]
         v = np.clip((ahead - p0) / span, v0 - c, v0 + c)
         if cmd.kind == "stop":  # a stop never reverses a joint
             v = np.where(v * v0 < 0.0, 0.0, v)
         v = np.clip(v, rounding - self._vmax, self._vmax - rounding)
-        return self._inside(p0, p0 + v * span), tau, False
+        x = self._inside(p0, p0 + v * span)
+        return x, (x - p0) / span, tau, False
 
     def _inside(self, p0: FloatArray, x: FloatArray) -> FloatArray:
         """``x`` brought back toward ``p0``, along the way between them, as far as it must be to keep
@@ -405,12 +498,12 @@ class SSC32Adapter(SerialAdapter):
         self.stride_for(cmd)
 
     def stride_for(self, cmd: Command) -> int:
-        """Every how many samples a group move is sent, so the stream fits ``LINK_SHARE`` of the link."""
-        per_second = LINK_SHARE * self.baud / 10.0 / self._line_bytes()  # group moves the link carries [1/s]
+        """Every how many samples a line is sent, so the stream fits ``LINK_SHARE`` of the link."""
+        per_second = LINK_SHARE * self.baud / 10.0 / self._line_bytes()  # lines the link carries [1/s]
         stride = max(1, math.ceil(cmd.rate_hz / per_second - 1e-9))
         if stride / cmd.rate_hz > MAX_PERIOD + 1e-9 and len(cmd.times) > 1:
             raise BadRequest(
-                f"at {self.baud} baud the link carries {per_second:.1f} group moves of "
+                f"at {self.baud} baud the link carries {per_second:.1f} lines of "
                 f"{len(self.channels)} servos a second: samples {stride / cmd.rate_hz * 1000:.0f} ms "
                 f"apart, more than {MAX_PERIOD * 1000:.0f} ms; raise the SSC-32's baud rate "
                 f"(--baud and the board's)",
@@ -437,15 +530,15 @@ class SSC32Adapter(SerialAdapter):
         if not self._settled and (first or now >= due):
             if not first:
                 self._lateness = max(self._lateness, now - due)
-                if now + link > self._t1:  # the board got there first, and stopped
-                    self._stopped_late(cmd, now + link - self._t1)
+                if now + link > self._t_end:  # the board got there first, and stopped
+                    self._stopped_late(cmd, now + link - self._t_end)
             self._stream(cmd, first, period, lead)
-        return self._settled and now >= self._t1
+        return self._settled and now >= float(np.max(self._until))
 
     def _stopped_late(self, cmd: Command, late: float) -> None:
         """Said when the control loop ran so late (a stalled process) that the board finished its
         move and held: a stop at the speed it had, which no command of the SSC-32 can soften."""
-        v = float(np.max(np.abs(self._p1 - self._p0) / max(self._t1 - self._t0, 1e-6) / self._vmax))
+        v = float(np.max(np.abs(self._p1 - self._p0) / np.maximum(self._until - self._since, 1e-6) / self._vmax))
         log.warning(
             "%s: the adapter ran %.0f ms late: the board finished its move and held (from %.0f%% of a "
             "velocity limit); resuming from rest",
@@ -547,7 +640,7 @@ class SSC32Adapter(SerialAdapter):
     def _compare(self, pulses: FloatArray, asked: float, answered: float) -> None:
         """A QP answer against the model, anywhere between when it was asked and answered."""
         amap = self.robot.actuators
-        ts = [t for _, t0, _, t1 in self._pieces for t in (t0, t1) if asked < t < answered]
+        ts = [t for _, t0, _, t1 in self._pieces for t in (*t0, *t1) if asked < t < answered]
         model = np.array([amap.command_values(self._was_at(float(t))) for t in (asked, *ts, answered)])  # [us]
         lo, hi = model.min(axis=0) - QP_TOL, model.max(axis=0) + QP_TOL
         off = np.maximum(lo - pulses, pulses - hi)

@@ -171,7 +171,7 @@ def run_move(
 
 def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     arm = b.arms["insomniac"]
-    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
+    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop", "held")}
     with (
         tempfile.TemporaryDirectory() as state,
         EmulatorProcess(SSC32Emulator, query_delay=0.15 if condition == "slow board" else 1e-4) as emu,
@@ -197,7 +197,8 @@ def ssc32_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
                             Motion(m.times[m.times >= stalled + 1.0], m.position[m.times >= stalled + 1.0], 0),
                         ]
                     )
-                    rs = [ratios(arm, part, 0.02, ssc32_speed_noise(arm, emu, since)) for part in parts]
+                    rs = [ratios(arm, part, 0.02, ssc32_speed_noise(arm, emu, since), held=True) for part in parts]
+                    out["held"].append(max(r.held for r in rs))
                     out["v"].append(max(r.velocity for r in rs))
                     out["a"].append(max(r.acceleration for r in rs))
                     if condition != "stall":  # (a stall adds 1.5 s by design)
@@ -243,7 +244,7 @@ def stop_latency(b: Bench, robot: str, goal: list[float], still: Callable[[], fl
 def grbl_runs(b: Bench, condition: str, runs: int) -> dict[str, list[float]]:
     arm = b.arms["gupta3fine"]
     vlim, alim = actuator_limits_deg(arm)
-    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop")}
+    out: dict[str, list[float]] = {k: [] for k in ("v", "a", "duration", "stop", "held")}
     with (
         tempfile.TemporaryDirectory() as state,
         GrblEmulator(status_delay=0.15 if condition == "slow board" else 0.003) as emu,
@@ -309,15 +310,18 @@ def main() -> None:
                     print(f"{name} {condition}: {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
         finally:
             b.close()
-    print("| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop |")
-    print("|---|---|---|---|---|---|")
+    print(
+        "| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop "
+        "| lines held (worst) |"
+    )
+    print("|---|---|---|---|---|---|---|")
     for name, condition, res in rows:
         if "failed" in res:
-            print(f"| {name} | {condition} | failed: {res['failed']} | | | |")
+            print(f"| {name} | {condition} | failed: {res['failed']} | | | | |")
             continue
         print(
             f"| {name} | {condition} | {cell(res['v'])} | {cell(res['a'])} | {cell(res['duration'])} | "
-            f"{cell(res['stop'])} |"
+            f"{cell(res['stop'])} | {int(max(res['held'])) if res['held'] else '-'} |"
         )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
 

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -174,7 +176,9 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(
             time.sleep(0.2)
             assert abs(emu.pulse(1) + emu.pulse(2) - 3000) <= 1  # channels 1 and 2 mirrored about 1500
             assert np.allclose(ssc32_joints(arm, emu), goal, atol=2e-3)
-            assert all(set(m.pulses) == {0, 1, 2, 3, 4} for m in emu.history[1:])  # every channel of the map
+            streamed = [set(m.pulses) for m in emu.history[1:]]  # (the first: the start-up's jump)
+            assert set().union(*streamed) == {0, 1, 2, 3, 4}  # every channel of the map
+            assert all(ch in ({0}, {1, 2}, {3}, {4}) for ch in streamed)  # the mirrored pair: one command
             client.gripper("sg5ut", 1.0)
             wait_for(lambda: emu.target(5) == 2000, timeout=5, what="the gripper channel")
         finally:
@@ -199,37 +203,39 @@ def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Sessio
 
 ROOT = Path(__file__).resolve().parent.parent
 GOAL = [1.2, 2.0, -1.8, 1.0, 1.0]  # insomniac, far from neutral: every joint near its velocity limit
-# The board's pulses are whole microseconds: the measure allows each piece's speed the
-# uncertainty of its ends' rounding (adapters/emulators/measure.py). What is left is the host's
-# timing of its writes (a millisecond on 20 ms pieces); the adapter's own model keeps every
-# change within the limit (test_the_adapters_own_model_keeps_the_limits).
+# The board's pulses and speeds are whole microseconds: the measure allows each piece's speed
+# that rounding (adapters/emulators/measure.py). A line the host held on its way (the kernel
+# thread that carries a pseudo-terminal's bytes, a few ms now and then) reaches the board late
+# and the next one on time: that change is counted over the period the adapter aimed for, and
+# such lines are counted (HELD_MAX a move; an adapter that sends lines too close together would
+# show it at every line). What is left is the host's timing of the writes (the loop's 1 ms
+# tick); the adapter's own model keeps every change within the limit
+# (test_the_adapters_own_model_keeps_the_limits).
 ACCEL_BAR = 1.05
 SPEED_BAR = 1.01  # (the same rounding on a speed)
-BUSY_ACCEL_BAR = 1.1  # beside two busy processes on two cores: the adapter's writes held up after they were aimed
+BUSY_ACCEL_BAR = 1.05  # beside two busy processes on two cores (the loop runs at real-time priority)
+HELD_MAX = 10  # lines of a move (of about 45) held on their way by the host: a busy host holds a few
 
 
 def ratios(arm: robots.Robot, m: Motion, period: float, exact: bool = False) -> Any:
     """The worst speed and acceleration against the limits: of the board's output (the rounding
     of its targets to whole microseconds allowed for), or of an exact path (``exact``: the
     adapter's own model)."""
-    return _ratios(arm, m, period, 0.0 if exact else ssc32_speed_noise(arm, EMULATORS[-1], m.times[0]))
+    if exact:
+        return _ratios(arm, m, period)
+    return _ratios(arm, m, period, ssc32_speed_noise(arm, EMULATORS[-1], m.times[0]), held=True)
 
 
 EMULATORS: list[SSC32Emulator] = []  # the test's emulator, for its rounding (set by _moved)
 
 
 def commanded(adapter: SSC32Adapter) -> Motion:
-    """The group moves as the adapter sent and timed them (each from where it had the board, at
-    the time the link delivers it): what a board that keeps time does, before the pulses' rounding."""
+    """The lines as the adapter sent and timed them (each servo from where it had the board, at
+    the time the link delivers its command): what a board that keeps time does, before the
+    pulses' rounding."""
     pieces = list(adapter._pieces)[1:]
-    times, points = [], []
-    for (p0, t0, p1, t1), nxt in zip(pieces, [*pieces[1:], None], strict=True):
-        times.append(t0)
-        points.append(p0)
-        if nxt is None or t1 < nxt[1]:
-            times.append(t1)
-            points.append(p1)
-    return Motion(np.array(times), np.array(points), 0)
+    times = sorted({float(t) for _, t0, _, t1 in pieces for t in (*t0, *t1)})
+    return Motion(np.array(times), np.array([adapter._was_at(t) for t in times]), 0)
 
 
 def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subprocess.Popen[str]:
@@ -258,6 +264,25 @@ def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subp
     )
 
 
+@contextlib.contextmanager
+def running_adapter(
+    router: str, service: Any, tmp_path: Path, *extra: str, **emulator: Any
+) -> Iterator[tuple[EmulatorProcess, subprocess.Popen[str]]]:
+    """An emulated SSC-32 in a process of its own (a board has its own CPU, not this busy
+    interpreter's) and ``armd adapter ssc32 insomniac`` on it as a user runs it (``extra``: its
+    options), ready: its token seen, its start-up's jump to neutral on the board."""
+    arm = robots.load("insomniac")
+    with EmulatorProcess(SSC32Emulator, **emulator) as emu:
+        proc = adapter_process(emu.port, router, tmp_path, *extra)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")
+            time.sleep(0.1)
+            yield emu, proc
+        finally:
+            proc.terminate()
+            proc.wait(10)
+
+
 def _moved(arm: robots.Robot, emu: SSC32Emulator, since: float) -> Motion:
     EMULATORS.append(emu)
     m = ssc32_motion(arm, emu, since=since)
@@ -272,7 +297,7 @@ def _check_promise(
     assert m.jumps == 0
     assert r.outside <= 1e-9, r
     assert r.velocity <= SPEED_BAR, r
-    assert r.acceleration <= ACCEL_BAR, r
+    assert r.acceleration <= ACCEL_BAR and r.held <= HELD_MAX, r
     start, end = m.moving()
     assert end - start <= 1.15 * planned + slack, (end - start, planned)  # re-timed at most a little slower
     assert np.max(np.abs(m.position[-1] - np.array(goal))) < 3e-3  # at the goal (within the pulses' rounding)
@@ -292,32 +317,27 @@ def test_a_move_keeps_every_limit_at_the_board(
     user runs it, a process of its own (in this interpreter, beside the service and the router,
     a thread switch can hold a write after it was timed)."""
     arm = robots.load("insomniac")
-    with EmulatorProcess(SSC32Emulator, baud=baud, query_delay=query_delay) as emu:  # (its own CPU, as a board)
-        proc = adapter_process(emu.port, router, tmp_path, "--baud", str(baud))
-        try:
-            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
-            events, sub = collect(client, "armd/insomniac/events")
-            time.sleep(0.1)  # (the start-up's jump to neutral reaches the board)
-            since = emu.clock()
-            r = client.move("insomniac", GOAL, wait=True, wait_timeout=15)
-            time.sleep(0.3)
-            sub.undeclare()  # type: ignore[attr-defined]
-            assert not [e for e in events if e["event"] in ("fault", "aborted", "rejected")], events
-            moves = [m.time for m in emu.history if m.time >= since and len(m.pulses) > 1]
-            period = float(np.median(np.diff(moves)))  # the stream's own cadence, as the board received it
-            _check_promise(arm, _moved(arm, emu, since), period, r.duration, GOAL)
-            if baud == 9600:
-                assert period > 1.5 / 50.0  # thinned: 50 group moves a second do not fit 960 bytes a second
-        finally:
-            proc.terminate()
-            proc.wait(10)
+    board = running_adapter(router, service, tmp_path, "--baud", str(baud), baud=baud, query_delay=query_delay)
+    with board as (emu, _):
+        events, sub = collect(client, "armd/insomniac/events")
+        since = emu.clock()
+        r = client.move("insomniac", GOAL, wait=True, wait_timeout=15)
+        time.sleep(0.3)
+        sub.undeclare()  # type: ignore[attr-defined]
+        assert not [e for e in events if e["event"] in ("fault", "aborted", "rejected")], events
+        first = arm.actuators.actuators[0].channel  # (each line: a command per servo, this one's first)
+        moves = [m.time for m in emu.history if m.time >= since and first in m.pulses]
+        period = float(np.median(np.diff(moves)))  # the stream's own cadence, as the board received it
+        _check_promise(arm, _moved(arm, emu, since), period, r.duration, GOAL)
+        if baud == 9600:
+            assert period > 1.5 / 50.0  # thinned: 50 lines a second do not fit 960 bytes a second
 
 
 def test_the_adapters_own_model_keeps_the_limits(
     client: ArmClient, service: object, adapter_session: zenoh.Session
 ) -> None:
-    """The group moves as the adapter timed them (before the pulses' rounding): every change of
-    speed within the acceleration limits, every speed within the velocity limits."""
+    """The lines as the adapter aimed and timed them (before the pulses' rounding): every change
+    of speed within the acceleration limits, every speed within the velocity limits."""
     arm = robots.load("insomniac")
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port)
@@ -344,27 +364,45 @@ def test_busy_processes_do_not_break_the_promise(
         for _ in range(2)
     ]
     try:
-        with EmulatorProcess(SSC32Emulator) as emu:
-            proc = adapter_process(emu.port, router, tmp_path)
-            try:
-                wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
-                time.sleep(0.1)
-                since = emu.clock()
-                r = client.move("insomniac", GOAL, wait=True, wait_timeout=20)
-                time.sleep(0.3)
-                m = ssc32_motion(arm, emu, since=since)  # type: ignore[arg-type]
-                rr = _ratios(arm, m, 0.02, ssc32_speed_noise(arm, emu, since))  # type: ignore[arg-type]
-                assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
-                assert rr.acceleration <= BUSY_ACCEL_BAR, rr
-                assert np.max(np.abs(m.position[-1] - np.array(GOAL))) < 3e-3
-                assert m.moving()[1] - m.moving()[0] <= 2.0 * r.duration + 0.5
-            finally:
-                proc.terminate()
-                proc.wait(10)
+        with running_adapter(router, service, tmp_path) as (emu, _):
+            since = emu.clock()
+            r = client.move("insomniac", GOAL, wait=True, wait_timeout=20)
+            time.sleep(0.3)
+            m = ssc32_motion(arm, emu, since=since)  # type: ignore[arg-type]
+            rr = _ratios(arm, m, 0.02, ssc32_speed_noise(arm, emu, since), held=True)  # type: ignore[arg-type]
+            assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
+            assert rr.acceleration <= BUSY_ACCEL_BAR and rr.held <= HELD_MAX, rr
+            assert np.max(np.abs(m.position[-1] - np.array(GOAL))) < 3e-3
+            assert m.moving()[1] - m.moving()[0] <= 2.0 * r.duration + 0.5
     finally:
         for p in burn:
             p.kill()
             p.wait()
+
+
+def test_a_line_held_on_its_way_changes_the_speeds_late_not_by_more(
+    router: str, client: ArmClient, service: object, tmp_path: Path
+) -> None:
+    """The host holds a line 8 ms after the adapter wrote it, three times in a move (as a USB-serial
+    link or the kernel's terminal thread may now and then): the servos change speed late, by
+    what was aimed (a move timed by T would cover the rest of its way in T instead: faster or
+    slower by the distance lost, here a change of speed twice the limit). The change after a held
+    line comes early and is counted over the period the adapter aimed for; every joint within
+    its limits; the held lines seen as held."""
+    arm = robots.load("insomniac")
+    with running_adapter(router, service, tmp_path) as (emu, _):
+        since = emu.clock()
+        r = client.move("insomniac", GOAL)
+        for _ in range(3):
+            time.sleep(0.2 * r.duration)
+            emu.delay_input(0.008)
+        wait_for(lambda: np.max(np.abs(ssc32_joints(arm, emu) - GOAL)) < 3e-3, timeout=15, what="the goal")
+        time.sleep(0.3)
+        m = _moved(arm, emu, since)
+        rr = ratios(arm, m, 0.02)
+        assert m.jumps == 0 and rr.velocity <= SPEED_BAR and rr.outside <= 1e-9, rr
+        assert rr.acceleration <= ACCEL_BAR, rr
+        assert 1 <= rr.held <= 3 + HELD_MAX, rr
 
 
 def test_a_stalled_adapter_never_catches_up_by_jumping(
@@ -374,42 +412,36 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(
     hand and holds; when the adapter runs again it ramps up from rest within the limits and
     finishes the trajectory later: never faster than the limits."""
     arm = robots.load("insomniac")
-    with EmulatorProcess(SSC32Emulator) as emu:  # (a board has its own CPU: not this busy interpreter's)
-        proc = adapter_process(emu.port, router, tmp_path)
-        try:
-            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
-            time.sleep(0.1)
-            since = emu.clock()
-            r = client.move("insomniac", GOAL)
-            time.sleep(0.3 * r.duration)
-            proc.send_signal(signal.SIGSTOP)
-            stalled = emu.clock()
-            time.sleep(1.5)
-            proc.send_signal(signal.SIGCONT)
-            wait_for(lambda: np.max(np.abs(ssc32_joints(arm, emu) - GOAL)) < 3e-3, timeout=15, what="the goal")
-            time.sleep(0.3)
-            m = _moved(arm, emu, since)
-            before = Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0)
-            after = m.times >= stalled + 1.0
-            resumed = Motion(m.times[after], m.position[after], 0)
-            for part in (before, resumed):
-                rr = ratios(arm, part, 0.02)
-                assert rr.velocity <= SPEED_BAR and rr.acceleration <= ACCEL_BAR and rr.outside <= 1e-9, rr
-            assert m.jumps == 0
-            # the stall: the board finished its move in hand (within the lead and a period) and held there:
-            # the one stop at speed an SSC-32 move cannot soften (docs/adapters.md)
-            at = [
-                np.array([np.interp(t, m.times, m.position[:, j]) for j in range(arm.nq)])
-                for t in (stalled + 0.15, stalled + 1.0)
-            ]
-            assert np.allclose(at[0], at[1], atol=1e-9)  # held, while the adapter was stopped
-            v = np.diff(m.position, axis=0) / np.maximum(np.diff(m.times), 1e-9)[:, None]
-            assert np.all(
-                np.abs(v[(m.times[:-1] >= stalled) & (m.times[1:] <= stalled + 1.5)]) <= arm.limits.velocity * SPEED_BAR
-            )
-        finally:
-            proc.terminate()
-            proc.wait(timeout=10)
+    with running_adapter(router, service, tmp_path) as (emu, proc):
+        since = emu.clock()
+        r = client.move("insomniac", GOAL)
+        time.sleep(0.3 * r.duration)
+        proc.send_signal(signal.SIGSTOP)
+        stalled = emu.clock()
+        time.sleep(1.5)
+        proc.send_signal(signal.SIGCONT)
+        wait_for(lambda: np.max(np.abs(ssc32_joints(arm, emu) - GOAL)) < 3e-3, timeout=15, what="the goal")
+        time.sleep(0.3)
+        m = _moved(arm, emu, since)
+        before = Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0)
+        after = m.times >= stalled + 1.0
+        resumed = Motion(m.times[after], m.position[after], 0)
+        for part in (before, resumed):
+            rr = ratios(arm, part, 0.02)
+            assert rr.velocity <= SPEED_BAR and rr.acceleration <= ACCEL_BAR and rr.outside <= 1e-9, rr
+            assert rr.held <= HELD_MAX, rr
+        assert m.jumps == 0
+        # the stall: the board finished its move in hand (within the lead and a period) and held there:
+        # the one stop at speed an SSC-32 move cannot soften (docs/adapters.md)
+        at = [
+            np.array([np.interp(t, m.times, m.position[:, j]) for j in range(arm.nq)])
+            for t in (stalled + 0.15, stalled + 1.0)
+        ]
+        assert np.allclose(at[0], at[1], atol=1e-9)  # held, while the adapter was stopped
+        v = np.diff(m.position, axis=0) / np.maximum(np.diff(m.times), 1e-9)[:, None]
+        assert np.all(
+            np.abs(v[(m.times[:-1] >= stalled) & (m.times[1:] <= stalled + 1.5)]) <= arm.limits.velocity * SPEED_BAR
+        )
 
 
 def test_a_restarted_adapter_adopts_the_board_and_a_powered_board_gets_the_last_pose(

@@ -27,6 +27,9 @@ from .grbl import GrblEmulator
 from .ssc32 import SSC32Emulator
 
 MIN_PIECE = 1e-4  # [s] pieces shorter than this are not counted as pieces of motion
+HELD_DELAY = 0.75  # periods: the longest a host may hold a line on its way, for ratios(held=True)
+HELD_TOL = 5e-4  # [s] the slack on a line's time against the rhythm of the lines before it
+SAME_SPEED = 1e-6  # of a velocity limit: a smaller change of speed is none (the float noise of differences)
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,7 @@ class Ratios:
     acceleration: float
     acceleration_joint: str
     outside: float
+    held: int = 0  # changes counted at the period: their line was held on its way (``ratios(held=True)``)
 
 
 def ssc32_motion(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) -> Motion:
@@ -77,12 +81,19 @@ def ssc32_motion(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) 
 
 
 def ssc32_speed_noise(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) -> FloatArray:
-    """Per joint [rad/s]: how far rounding a group move's target to a whole microsecond (half a
-    microsecond at most) moves its speed, over the shortest ``T`` the emulator received since
-    ``since``: the rounding :func:`ratios` allows for."""
-    times = [m.duration_ms for m in emulator.history if m.time >= since and m.duration_ms]
-    shortest = min(times, default=1000) / 1000.0
-    return 0.5 * pulse_resolution(robot) / shortest
+    """Per joint [rad/s]: how far the board's whole microseconds may move a piece's speed, for the
+    group moves the emulator received since ``since``: the rounding :func:`ratios` allows for.
+
+    A move timed by ``T`` reaches a whole-microsecond target in ``T``: its speed is off by up to
+    half a microsecond over ``T`` (the shortest ``T`` counts). A move of speeds ``S`` (whole
+    microseconds a second) is off by half of one, twice for a group of several servos (they
+    start and end together: each one's speed is its distance over the slowest one's time)."""
+    moves = [m for m in emulator.history if m.time >= since]
+    times = [m.duration_ms for m in moves if m.duration_ms]
+    noise = 0.5 / (min(times) / 1000.0) if times else 0.0  # [us/s]
+    if any(m.speeds and not m.duration_ms for m in moves):
+        noise = max(noise, 1.0)
+    return noise * pulse_resolution(robot)
 
 
 def pulse_resolution(robot: Robot) -> FloatArray:
@@ -111,18 +122,34 @@ def _pulse_at(segments: list[tuple[float, float, float, float]], times: FloatArr
     return out
 
 
-def ratios(robot: Robot, motion: Motion, period: float, speed_noise: FloatArray | float = 0.0) -> Ratios:
+def ratios(
+    robot: Robot, motion: Motion, period: float, speed_noise: FloatArray | float = 0.0, held: bool = False
+) -> Ratios:
     """The worst velocity and acceleration of ``motion`` against ``robot``'s limits.
 
-    Velocity: exact, per linear piece. Acceleration: each change of speed (at a piece's end)
-    over the time since the previous change, counted at most ``period`` [s] (the stream's sample
-    period): the backward difference of the speed at the pieces' own spacing, where a piece held
-    longer (the board idle, waiting for a late command) counts as one period, so that a restart
-    at speed after a stall shows as the jump it is.
+    Velocity: exact, per linear piece. Acceleration, per joint: each change of its speed (at a
+    piece's end) over the time since its previous change, counted at most ``period`` [s] (the
+    stream's sample period): the backward difference of the speed at the changes' own spacing,
+    where a speed held longer (the board idle, waiting for a late command) counts as one
+    period, so that a restart at speed after a stall shows as the jump it is. (Per joint: the
+    servos of different joints may change speed at different moments, as the bytes of one
+    line reach the board one after another.)
 
     ``speed_noise`` [rad/s], per joint: how far the controller's own rounding may move a piece's
-    speed (the SSC-32's whole-microsecond targets: :func:`ssc32_speed_noise`); a change of speed
-    is counted beyond twice that only.
+    speed (the SSC-32's whole microseconds: :func:`ssc32_speed_noise`); a change of speed is
+    counted beyond twice that only, and a smaller one is no change.
+
+    ``held``: a line held after it was written (by the host's USB link, or the kernel thread
+    that carries a pseudo-terminal's bytes) reaches the board late, and no command can say so;
+    the next one, on the stream's rhythm, then comes less than a period after it. With
+    ``held``, a change that comes short of a period after the previous one, in a sequence of
+    changes that a stream of one line a period explains with lines held up to ``HELD_DELAY``
+    periods each (each line no sooner than a period after the one before, as the adapter aimed
+    them, and each one reaching the board no earlier than so, no later than held), is counted
+    over the period (the host's timing, not the adapter's) and in ``Ratios.held`` (the most of
+    any joint). An adapter that sends lines too close together soon leaves that explanation,
+    and every such change counts at its spacing (the adapter's own timing is checked exactly
+    in tests/test_adapter_ssc32.py, test_the_adapters_own_model_keeps_the_limits).
     """
     lim = robot.limits
     names = robot.joint_names
@@ -138,11 +165,28 @@ def ratios(robot: Robot, motion: Motion, period: float, speed_noise: FloatArray 
     vj = int(np.argmax(np.max(vr, axis=0)))
     if len(d) < 2:
         return Ratios(float(np.max(vr)), names[vj], 0.0, names[0], max(outside, 0.0))
-    dv = np.maximum(np.abs(np.diff(v, axis=0)) - 2.0 * np.asarray(speed_noise, dtype=float), 0.0)
-    a = dv / np.minimum(d[:-1], period)[:, None]
-    ar = np.abs(a) / lim.acceleration
-    aj = int(np.argmax(np.max(ar, axis=0)))
-    return Ratios(float(np.max(vr)), names[vj], float(np.max(ar)), names[aj], max(outside, 0.0))
+    ends = np.cumsum(d)  # [s] the pieces' ends, from the first piece's start
+    noise = np.broadcast_to(np.asarray(speed_noise, dtype=float), (robot.nq,))
+    worst = np.zeros(robot.nq)
+    excused = 0
+    for j in range(robot.nq):
+        dv = np.abs(np.diff(v[:, j])) - 2.0 * noise[j]  # at the end of each piece but the last
+        last = -np.inf  # [s] when this joint's speed last changed (before the motion: held, a period at least)
+        aimed = -np.inf  # [s] the earliest its line could have been aimed for, by the lines before
+        count = 0
+        for i in np.flatnonzero(dv > SAME_SPEED * lim.velocity[j]):
+            gap = ends[i] - last
+            aimed = max(ends[i] - HELD_DELAY * period, aimed + period)
+            explained = aimed <= ends[i] + HELD_TOL
+            late = held and gap < period - HELD_TOL and explained
+            count += late
+            worst[j] = max(worst[j], dv[i] / (period if late else min(gap, period)) / lim.acceleration[j])
+            last = ends[i]
+            if not explained:  # (the stream rushed: its rhythm from here on, the line as it came)
+                aimed = ends[i]
+        excused = max(excused, count)
+    aj = int(np.argmax(worst))
+    return Ratios(float(np.max(vr)), names[vj], float(worst[aj]), names[aj], max(outside, 0.0), int(excused))
 
 
 def grbl_motion(robot: Robot, emulator: GrblEmulator) -> tuple[FloatArray, FloatArray]:

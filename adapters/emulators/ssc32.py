@@ -46,6 +46,8 @@ The link and the board's timing (``baud``, ``query_delay``; all times on ``clock
   its pulses across an adapter's restart. ``power_cycle()`` turns every channel off, as a board just powered.
 - ``segments(channel)`` is the exact pulse output over time, piecewise linear: the board's interpolation,
   holds, and jumps (zero-length segments: a first move, an immediate move, ``P0``, a power cycle).
+- ``delay_input(seconds)``: the host holds the next bytes written that long before the board has them
+  (a USB-serial link's or a terminal's latency, now and then: the host's timing, for tests).
 
 Where the real board differs, or may:
 
@@ -168,6 +170,7 @@ class SSC32Emulator(PtyEmulator):
         self.out_of_range: list[tuple[int, int]] = []  # (channel, pulse [us]) received outside 500..2500
         self.errors: list[str] = []  # lines not understood, as received
         self.responding = True  # False: reads and discards everything, answers and executes nothing
+        self._input_delay = 0.0  # [s] how long the host holds the next bytes written (delay_input)
         self._servos: dict[int, _Servo] = {}  # channels with pulses
         self._off_since: dict[int, float] = {}  # channels turned off (P0, power cycle): since when [s]
         self._trace: dict[int, list[Segment]] = {}  # closed segments, per channel
@@ -241,6 +244,13 @@ class SSC32Emulator(PtyEmulator):
             self._tx.clear()
             self._tx_free = -math.inf
 
+    def delay_input(self, seconds: float) -> None:
+        """The host holds the next bytes written to the port ``seconds`` before they reach the
+        board, as a USB-serial link or the kernel thread that carries a terminal's bytes does now
+        and then (a host's timing, not the board's: for tests of what a late command does)."""
+        with self._lock:
+            self._input_delay = float(seconds)
+
     # -- the link ------------------------------------------------------------------------------
 
     def _byte_time(self) -> float:
@@ -291,6 +301,10 @@ class SSC32Emulator(PtyEmulator):
             # later, so that a clock that is not time.monotonic, a test's, is seen to move)
             timeout = 0.05 if wait == math.inf else min(max(wait, 0.0), 0.005)
             if select.select([master], [], [], timeout)[0]:
+                with self._lock:
+                    held, self._input_delay = self._input_delay, 0.0
+                if held > 0.0:
+                    time.sleep(held)
                 try:
                     chunk = os.read(master, 4096)
                 except (BlockingIOError, InterruptedError):
