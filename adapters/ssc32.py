@@ -10,7 +10,9 @@ one from where the servo is, and the servos of one command start and end togethe
 adapter keeps a model of that motion (per joint: where the board is heading, from where, until
 when, as the board interpolates it) and streams a trajectory one line a period, a command per
 group of servos that share a joint (a mirrored pair is one command), each padded with spaces to
-a fixed width so that every command reaches the board at the same point of every line:
+a fixed width so that every command reaches the board at the same point of every line. A
+linkage's servos (a group that moves more than one joint, desk4's) go in one command timed by
+``T``: their speeds are in no one ratio, and the board ends a command's servos together:
 
 - Each servo gets a speed and a target a span ahead (``lead`` and a period), and the next line
   replaces it a period in: the board is never idle while the adapter is on time, and a late
@@ -170,10 +172,20 @@ class SSC32Adapter(SerialAdapter):
         # one command a group of servos (those that share a joint), each padded to a fixed width:
         # every group's carriage return reaches the board at the same point of every line
         self._groups = _groups(amap.M)
-        self._widths = [sum(len(f"#{self.channels[r]}P2500S{SPEED_MAX}") for r in g) + 1 for g in self._groups]
+        # a group whose servos move more than one joint (a linkage) moves in a time T: its servos'
+        # speeds are not in one ratio, and the board ends them together (a speed each would not be kept)
+        self._timed = [len({int(j) for r in g for j in np.flatnonzero(amap.M[r])}) > 1 for g in self._groups]
+        self._widths = [
+            sum(len(f"#{self.channels[r]}P2500") for r in g)
+            + (len("T65535") if timed else len(g) * len(f"S{SPEED_MAX}"))
+            + 1
+            for g, timed in zip(self._groups, self._timed, strict=True)
+        ]
         self._cr_at = np.cumsum(self._widths)  # [bytes] where each group's command ends in a line
         group_of = {r: k for k, g in enumerate(self._groups) for r in g}
         self._joint_group = np.array([group_of[int(np.flatnonzero(amap.M[:, j])[0])] for j in range(robot.nq)])
+        self._timed_joint = np.array(self._timed)[self._joint_group]
+        self._timed_servo = np.array([self._timed[group_of[r]] for r in range(len(self.channels))])
         # the board's motion, as the model has it: per joint, linear from _p0 at _since to _p1 at _until, then held
         now = time.monotonic()
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
@@ -322,12 +334,16 @@ class SSC32Adapter(SerialAdapter):
         line = "".join(f"#{ch}P{int(pw)}" for ch, pw in zip(self.channels, pulses.tolist(), strict=True))
         self._write((line + "\r").encode())
 
-    def _speed_line(self, pulses: np.ndarray, speeds: np.ndarray) -> bytes:
-        """The stream's line: per group of servos, ``#<ch>P<pw>S<spd>...\\r``, each padded in front
-        with spaces (which the board ignores) to its fixed width."""
+    def _speed_line(self, pulses: np.ndarray, speeds: np.ndarray, ms: int) -> bytes:
+        """The stream's line: per group of servos, ``#<ch>P<pw>S<spd>...\\r`` (a linkage's:
+        ``#<ch>P<pw>...T<ms>\\r``), each padded in front with spaces (which the board ignores) to
+        its fixed width."""
         out = []
-        for g, width in zip(self._groups, self._widths, strict=True):
-            text = "".join(f"#{self.channels[r]}P{int(pulses[r])}S{int(speeds[r])}" for r in g) + "\r"
+        for g, width, timed in zip(self._groups, self._widths, self._timed, strict=True):
+            if timed:
+                text = "".join(f"#{self.channels[r]}P{int(pulses[r])}" for r in g) + f"T{ms}\r"
+            else:
+                text = "".join(f"#{self.channels[r]}P{int(pulses[r])}S{int(speeds[r])}" for r in g) + "\r"
             out.append(text.rjust(width))
         return "".join(out).encode()
 
@@ -378,7 +394,8 @@ class SSC32Adapter(SerialAdapter):
         little late changes its speed a little late, by no more than was aimed (a move timed by
         ``T`` would instead cover what is left of its way in ``T``: faster or slower by the
         distance lost)."""
-        span = lead + period  # [s] the next line replaces this one a period in: a lead to spare
+        ms = max(1, round((lead + period) * 1000.0))  # [ms] a timed group's T
+        span = ms / 1000.0  # [s] the next line replaces this one a period in: a lead to spare
         byte = 10.0 / self.baud
         amap = self.robot.actuators
         start = max(time.monotonic(), self._link_free)
@@ -394,9 +411,10 @@ class SSC32Adapter(SerialAdapter):
             pulses = amap.commands(x)
             if not final:  # a target rounded away from the servo: not reached before the span is over
                 away = np.where(want > here, np.ceil(want - 1e-9), np.floor(want + 1e-9)).astype(np.int64)
+                away = np.where(self._timed_servo, pulses, away)  # (a timed group's: as near as may be)
                 if self._within(amap.joints_from_commands(away, tol=np.inf)):
                     pulses = away
-            line = self._speed_line(pulses, speeds)
+            line = self._speed_line(pulses, speeds, ms)
             actual = max(time.monotonic(), self._link_free)
             if abs(actual - start) <= ARRIVAL_TOL:
                 break
@@ -414,7 +432,12 @@ class SSC32Adapter(SerialAdapter):
             here = amap.command_values(p0)
         way = np.abs(pulses - here)
         # the board: each group starts and ends together, taking as long as its slowest servo needs
-        lasts = np.array([max(float(way[r] / speeds[r]) for r in g) for g in self._groups])
+        lasts = np.array(
+            [
+                ms / 1000.0 if timed else max(float(way[r] / speeds[r]) for r in g)
+                for g, timed in zip(self._groups, self._timed, strict=True)
+            ]
+        )
         target = amap.joints_from_commands(pulses, tol=np.inf)
         self._p0, self._since, self._p1, self._until = p0, t0, target, t0 + lasts[self._joint_group]
         self._pieces.append((self._p0, self._since, self._p1, self._until))
@@ -441,8 +464,10 @@ class SSC32Adapter(SerialAdapter):
         """
         p0, v0 = self._at(arrival)
         tau = 0.0 if first else self._tau + min(line - self._t_line, MAX_SLIP * period)
-        # [rad/s] how far a speed may come out from what is aimed: a whole microsecond a second
-        rounding = self._half_pulse
+        # [rad/s] how far a speed may come out from what is aimed: a whole microsecond a second; in a
+        # timed group, a whole-microsecond target over the span and a start up to ARRIVAL_TOL from
+        # when it is aimed for (the board a little farther on, or not as far)
+        rounding = np.where(self._timed_joint, (self._half_pulse + np.abs(v0) * ARRIVAL_TOL) / span, self._half_pulse)
         # each joint's last change of speed: its last command's arrival, or its target reached (a stop)
         changed = np.where(self._until <= arrival, self._until, self._since)
         c = np.maximum(self._amax * np.minimum(period, np.maximum(arrival - changed, 1e-3)) - rounding, 0.0)
