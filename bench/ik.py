@@ -53,7 +53,9 @@ from armd import robots  # noqa: E402
 # Arms as their vendors publish them, loaded from their folders with no [geometry]: the SO-101
 # with the vendor's rounded angles (a closed form found to 1.7e-6 m, refined on the exact model)
 # and the six-joint myCobot 280 (outside the family: the numerical IK).
-URDF_ARMS = [str(HERE.parent / "examples" / "arms" / name) for name in ("so101-vendor", "mycobot280")]
+URDF_ARMS = [
+    str(HERE.parent / "examples" / "arms" / name) for name in ("so101-vendor", "openmanipulator-x", "mycobot280")
+]
 DEFAULT_N = 10_000
 QUICK_N = 300
 # ikpy takes 10-60 ms a call (p99 up to a second on insomniac): 10,000 would take hours.

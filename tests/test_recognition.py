@@ -337,3 +337,13 @@ def test_the_so101_as_its_vendor_rounds_it_is_found_nearly_and_solved_exactly() 
     arm = robots.load_folder(Path(__file__).resolve().parent.parent / "examples" / "arms" / "so101-vendor")
     assert "refined on the exact model" in arm.solver and arm.solver.startswith("closed form: yaw + 3 pitch + roll")
     _exactly_solved(arm, n=400)
+
+
+def test_the_openmanipulator_x_from_its_vendor_urdf_is_found_exactly() -> None:
+    """ROBOTIS's URDF as published: the yaw 12 mm off the base origin, joint3 24 mm forward of the
+    upper arm's axis (a zero offset of atan(24 / 128) between the vendor's angles and the
+    family's), pitch axes +y: the closed form is found with the vendor's joint angles, exact."""
+    arm = robots.load_folder(Path(__file__).resolve().parent.parent / "examples" / "arms" / "openmanipulator-x")
+    assert arm.solver == "closed form: yaw + 3 pitch (found from the URDF's chain)", arm.solver
+    assert np.allclose(arm.fk(arm.neutral), [0.286, 0.0, 0.1875], atol=1e-12)  # the vendor's zero: as its URDF says
+    _exactly_solved(arm, n=400)
