@@ -358,7 +358,9 @@ def test_a_move_keeps_every_limit_at_the_board(
         assert not [e for e in events if e["event"] in ("fault", "aborted", "rejected")], events
         first = arm.actuators.actuators[0].channel  # (each line: a command per servo, this one's first)
         moves = [m.time for m in emu.history if m.time >= since and first in m.pulses]
-        period = float(np.median(np.diff(moves)))  # the stream's own cadence, as the board received it
+        # the stream's own period (a whole number of the plan's 50 Hz samples: the move asks the service's
+        # default rate), from its cadence as the board received it (a little longer: the loop runs late)
+        period = round(float(np.median(np.diff(moves))) * 50.0) / 50.0
         _check_promise(arm, _moved(arm, emu, since), period, r.duration, GOAL)
         if baud == 9600:
             assert period > 1.5 / 50.0  # thinned: 50 lines a second do not fit 960 bytes a second
