@@ -302,10 +302,24 @@ class SSC32Adapter(SerialAdapter):
         try:
             with self._io:
                 self.serial.write(data)
-        except (serial.SerialException, serial.SerialTimeoutException) as e:
+        except serial.SerialTimeoutException as e:
+            # pyserial starts the write's clock when called and looks at it after writing: a process
+            # stopped meanwhile (SIGSTOP, a suspended VM) gets a timeout for a write that went out.
+            # Nothing left in the output queue: written, not a stuck link
+            if not self._sent_all():
+                raise ControllerFault(f"SSC-32 on {self.port}: write failed: {e}") from None
+            log.info("%s: a write said it timed out with nothing left to send (this process was held)", self.robot.name)
+        except serial.SerialException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: write failed: {e}") from None
         now = time.monotonic()
         self._link_free = max(self._link_free, now) + len(data) * 10.0 / self.baud
+
+    def _sent_all(self) -> bool:
+        """Whether the port's output queue is empty (False if the port cannot say)."""
+        try:
+            return int(self.serial.out_waiting) == 0
+        except (serial.SerialException, OSError, AttributeError, NotImplementedError, TypeError):
+            return False
 
     def _ask(self, request: bytes, *, until: bytes | None = None, size: int = 1) -> bytes:
         """A blocking question (start-up only: the control loop never waits for the board)."""
