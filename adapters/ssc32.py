@@ -627,8 +627,9 @@ class SSC32Adapter(SerialAdapter):
                     self.serial.reset_input_buffer()
                 except serial.SerialException as e:
                     raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
+            asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
             self._write(request)
-            self._query = (max(now, self._link_free), len(self.channels))
+            self._query = (asked, len(self.channels))
             self._next_query = now + self.query_period
         if self.fault:
             raise ControllerFault(self.fault)
