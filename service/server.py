@@ -34,6 +34,7 @@ on, and work that overruns it is abandoned and answered ``deadline`` with nothin
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 import uuid
@@ -62,6 +63,7 @@ ACCEPT_PER_SAMPLE = 1e-4  # [s] ... plus this per sample (an adapter parses and 
 JUMP_SLACK = 0.05  # [rad] what a report may move beyond what the velocity limits allow since the last one
 SETTLE = 0.1  # [s] the time a report may move over, beyond the time between reports (bunched deliveries)
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
+DISPUTE_HOLD = 2.0  # [s] an adapter id that two publishers use (or a replay) is not believed this long
 SAY_EVERY = 5.0  # [s] ignored states are logged at most this often, counted between
 UNPROVEN_MAX = 64  # early states kept for tokens not seen yet
 
@@ -98,7 +100,8 @@ class Service:
         self._adapters: dict[str, set[str]] = {name: set() for name in self.arms}
         self._lock = threading.Lock()
         self._pending: dict[str, tuple[str, _Acceptance]] = {}  # trajectory id: (robot, its acceptance)
-        self._seqs: dict[tuple[str, str], int] = {}  # (robot, adapter): the last state's sequence number
+        self._seqs: dict[tuple[str, str], int] = {}  # (robot, adapter): the last sequence number seen under that id
+        self._disputed: dict[tuple[str, str], float] = {}  # (robot, adapter): when its numbers last went back
         self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
         self._ignored: dict[str, int] = {}  # states ignored, by reason
         self._said = 0.0  # when ignored states were last logged
@@ -386,6 +389,7 @@ class Service:
             self.book.forget(robot, ident)
             with self._lock:
                 self._seqs.pop((robot, ident), None)
+                self._disputed.pop((robot, ident), None)
         elif early is not None:  # its state came before its token: trusted now, if still fresh
             self._on_state(early)
         log.info("adapter %s of %s %s", ident, robot, "up" if sample.kind == zenoh.SampleKind.PUT else "gone")
@@ -394,7 +398,16 @@ class Service:
         """An adapter's state, trusted only from a live adapter (its liveliness token), in order
         (its sequence number), and plausible: within the limits (with a slack), its speed within
         them, and continuous with that adapter's last report. Anything else is ignored, counted,
-        and logged at most every ``SAY_EVERY`` seconds."""
+        and logged at most every ``SAY_EVERY`` seconds.
+
+        The id is no secret (every report carries it): a forger may publish under it. One
+        publisher's numbers only rise (Zenoh delivers a publisher's puts in order), so a number
+        not above the last one seen under the id, whatever else that report said, means a
+        second publisher or a replay: the id is disputed, and none of its reports is believed
+        until its numbers have risen for ``DISPUTE_HOLD`` seconds (the last report believed
+        before goes stale, and moves plan from what was commanded, which the adapter checks
+        against where the arm is). A forger who numbers high therefore silences the id for a
+        while; it never steers the planner, nor locks the adapter out."""
         robot = str(sample.key_expr).split("/")[-2]
         arm = self.arms.get(robot)
         if arm is None:
@@ -408,6 +421,7 @@ class Service:
         except (ValueError, KeyError, TypeError, AttributeError, orjson.JSONDecodeError):
             self._ignore(robot, "malformed")
             return
+        disputed = False
         with self._lock:
             if adapter not in self._adapters.get(robot, ()):
                 if len(self._unproven) < UNPROVEN_MAX or (robot, adapter) in self._unproven:
@@ -415,12 +429,18 @@ class Service:
                 known = False
             else:
                 known = True
-                last_seq = self._seqs.get((robot, adapter))
+                key = (robot, adapter)
+                last_seq = self._seqs.get(key)
+                self._seqs[key] = seq
+                now = time.monotonic()
+                if last_seq is not None and seq <= last_seq:
+                    self._disputed[key] = now
+                disputed = now - self._disputed.get(key, -math.inf) < DISPUTE_HOLD
         if not known:
             self._ignore(robot, "no live adapter of that id")
             return
-        if last_seq is not None and seq <= last_seq:
-            self._ignore(robot, "out of order or replayed")
+        if disputed:
+            self._ignore(robot, f"numbered out of order under adapter {adapter} (a second publisher or a replay)")
             return
         why = implausible(arm, state)
         if why is not None:
@@ -434,8 +454,6 @@ class Service:
             if np.any(np.abs(q - last[1].position) > lim.velocity * (dt + SETTLE) + JUMP_SLACK) and dt < RESET_AFTER:
                 self._ignore(robot, "not continuous with its last report")
                 return
-        with self._lock:
-            self._seqs[(robot, adapter)] = seq
         homed = msg.get("homed", True) is not False
         self.book.report(robot, state, bool(msg.get("moving", False)), homed, adapter=adapter)
 
@@ -447,9 +465,7 @@ class Service:
                 return
             self._said = now
             counts = ", ".join(f"{n} {reason}" for reason, n in sorted(self._ignored.items()))
-        log.warning(
-            "ignoring states on %s/%s/state that no live adapter vouches for (so far: %s)", self.prefix, robot, counts
-        )
+        log.warning("ignoring states on %s/%s/state (so far, by reason: %s)", self.prefix, robot, counts)
 
     # -- life ------------------------------------------------------------------------------
 

@@ -15,7 +15,7 @@ from armd import robots
 from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
 from armd.errors import ServiceError
-from armd.service.server import ACCEPT_TIMEOUT
+from armd.service.server import ACCEPT_TIMEOUT, DISPUTE_HOLD
 from armd.service.zconfig import network_config
 from tests.conftest import collect, wait_for
 
@@ -92,12 +92,45 @@ def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(
         )
         forger.put(f"armd/{ARM}/state", b'{"adapter": "x", "seq": 1, "position": [1e999]}')
         wait_for(lambda: _ignored(service) >= before + 5, what="the forgeries ignored")
-        for _ in range(10):
-            assert np.allclose(client.state(ARM)["position"], start, atol=1e-9)
+        for _ in range(10):  # the replay disputes the id: its last believed report, or none
+            s = client.state(ARM)
+            assert s["source"] != "adapter" or np.allclose(s["position"], start, atol=1e-9), s
             time.sleep(0.02)
+        # the adapter's own reports, in order, are believed again once the dispute is over
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", timeout=DISPUTE_HOLD + 5, what="the adapter again")
+        assert np.allclose(client.state(ARM)["position"], start, atol=1e-9)
         # and a move plans from where the adapter says the arm is
         r = client.call(f"{ARM}/move", {"goal": list(arm.neutral)})
         assert np.allclose(r["start"]["position"], start, atol=1e-6) and r["adapter"] == adapter.id
+    finally:
+        adapter.close()
+
+
+def test_a_forger_numbering_ahead_of_the_adapter_neither_steers_nor_locks_it_out(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, forger: zenoh.Session
+) -> None:
+    """The adapter's id and the arm's pose are public (in every report): a forger sends the pose
+    numbered far ahead, then walks it away within the velocity limits. Believed, that first
+    report would make every real report look old (the adapter locked out) and the walk would be
+    the service's picture of the arm. The adapter's next report, numbered lower, disputes the id:
+    the walk is never believed, and once the forger stops the adapter is believed again."""
+    arm = robots.load(ARM)
+    start = (np.array(arm.neutral) + 0.1).tolist()
+    adapter = SimAdapter(adapter_session, arm, start=np.array(start))
+    try:
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
+        seen: list[dict[str, object]] = []
+        step = arm.limits.velocity * 0.02 * 0.5  # half the speed limit, at 50 Hz
+        q = np.array(start)
+        for i in range(60):
+            q = q + step * (1 if i else 0)
+            forger.put(f"armd/{ARM}/state", _state(q.tolist(), adapter.id, 2**62 + i))
+            seen.append(client.state(ARM))
+            time.sleep(0.02)
+        for s in seen:  # never the walk: the adapter's pose, or (disputed, stale) not an adapter's word
+            assert s["source"] != "adapter" or np.allclose(s["position"], start, atol=1e-9), s
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", timeout=DISPUTE_HOLD + 5, what="the adapter again")
+        assert np.allclose(client.state(ARM)["position"], start, atol=1e-9)
     finally:
         adapter.close()
 
