@@ -1,12 +1,16 @@
-"""Commands that need no network: ``armd catalogue``, ``armd plot`` (plan in-process, draw it)
-and ``armd workspace`` (an arm's reachable space, by batch IK)."""
+"""Commands that need no network: ``armd catalogue``, ``armd plot`` (plan in-process, draw it),
+``armd workspace`` (an arm's reachable space, by batch IK) and ``armd secure-setup`` (the
+secure setup's files)."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+from pathlib import Path
 from typing import Any
+
+from armd import robots
 
 from .common import all_robots, goal, motion_args, numbers, robot_named
 
@@ -77,6 +81,35 @@ def cmd_workspace(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_secure_setup(args: argparse.Namespace) -> int:
+    """The router's configuration, the users file with fresh passwords and each side's client
+    configuration, for the arms named (default: the catalogue and ``--robots-dir``'s)."""
+    from armd.errors import UnknownRobot
+    from armd.service import secure_setup
+
+    known = list(robots.names()) + (list(robots.load_dir(args.robots_dir)) if args.robots_dir else [])
+    names = args.robot or known
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise UnknownRobot(unknown[0], known)
+    out = Path(args.dir)
+    contents = secure_setup.files(
+        names,
+        secure_setup.new_passwords(names),
+        str((out / "users.txt").resolve()),
+        endpoint=args.endpoint,
+        prefix=args.prefix,
+    )
+    for path in secure_setup.write(out, contents):
+        print(path)
+    print(
+        f"run: armd router --config {out / 'router.json5'}; give each side its file "
+        f"(armd serve --config {out / 'service.json5'}, armd adapter ... --config {out}/adapter-<robot>.json5, "
+        f"operators {out / 'operator.json5'}, guests {out / 'guest.json5'}); docs/security.md"
+    )
+    return 0
+
+
 def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p = sub.add_parser("catalogue", parents=[log_args], help="print the arms armd knows, offline")
     p.add_argument("--robots-dir", help="a folder of your own arms (robot.urdf + robot.toml each)")
@@ -102,3 +135,19 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--heights", type=int, default=16, help="heights the top view looks through (default 16)")
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.set_defaults(func=cmd_workspace)
+
+    p = sub.add_parser(
+        "secure-setup",
+        parents=[log_args],
+        help="write a router with logins and least-privilege roles, and each side's config (docs/security.md)",
+    )
+    p.add_argument("dir", help="an empty or new folder for the files")
+    p.add_argument("--robot", action="append", help="an arm with an adapter user of its own (default: every arm known)")
+    p.add_argument("--robots-dir", help="a folder of your own arms")
+    p.add_argument(
+        "--endpoint",
+        default="tcp/127.0.0.1:7447",
+        help="where the router listens and the clients connect (default tcp/127.0.0.1:7447)",
+    )
+    p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
+    p.set_defaults(func=cmd_secure_setup)

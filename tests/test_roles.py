@@ -71,21 +71,21 @@ def token_seen(declarer: zenoh.Session, key: str, observer: zenoh.Session) -> bo
 
 
 def test_the_service_publishes_trajectories_and_stops_that_adapters_hear(roles: Callable[[str], zenoh.Session]) -> None:
-    service, adapter = roles("service"), roles("adapter")
+    service, adapter = roles("service"), roles("adapter-desk4")
     assert delivered(service, "armd/desk4/trajectory", adapter)
     assert delivered(service, "armd/desk4/estop", adapter)
     assert delivered(service, "armd/desk4/gripper", adapter)
 
 
 def test_adapters_report_to_the_service_and_their_tokens_are_seen(roles: Callable[[str], zenoh.Session]) -> None:
-    service, adapter = roles("service"), roles("adapter")
+    service, adapter = roles("service"), roles("adapter-desk4")
     assert delivered(adapter, "armd/desk4/state", service)
     assert delivered(adapter, "armd/desk4/events", service)
     assert token_seen(adapter, "armd/desk4/adapter/a1", service)
 
 
 def test_an_operator_asks_every_verb_stops_and_watches(roles: Callable[[str], zenoh.Session]) -> None:
-    service, operator, adapter = roles("service"), roles("operator"), roles("adapter")
+    service, operator, adapter = roles("service"), roles("operator"), roles("adapter-desk4")
     assert answered(operator, "armd/desk4/move", service)
     assert delivered(operator, "armd/desk4/estop", adapter)
     assert delivered(operator, "armd/desk4/unlock", adapter)
@@ -95,8 +95,22 @@ def test_an_operator_asks_every_verb_stops_and_watches(roles: Callable[[str], ze
 
 def test_a_guest_asks_the_read_only_verbs(roles: Callable[[str], zenoh.Session]) -> None:
     service, guest = roles("service"), roles("guest")
-    assert answered(guest, "armd/desk4/ik", service)
+    for verb in ("info", "fk", "ik", "plan"):
+        assert answered(guest, f"armd/desk4/{verb}", service), verb
     assert answered(guest, "armd/robots", service)
+
+
+def test_an_operator_asks_the_verbs_that_move(roles: Callable[[str], zenoh.Session]) -> None:
+    service, operator = roles("service"), roles("operator")
+    for verb in ("stop", "gripper"):
+        assert answered(operator, f"armd/desk4/{verb}", service), verb
+
+
+def test_each_arms_adapter_hears_and_speaks_for_its_own_arm(roles: Callable[[str], zenoh.Session]) -> None:
+    service, gupta3 = roles("service"), roles("adapter-gupta3")
+    assert delivered(service, "armd/gupta3/trajectory", gupta3)
+    assert delivered(gupta3, "armd/gupta3/state", service)
+    assert token_seen(gupta3, "armd/gupta3/adapter/g1", service)
 
 
 # -- and what each may not ---------------------------------------------------------------------------
@@ -110,7 +124,7 @@ def test_a_guest_cannot_ask_a_verb_that_moves(roles: Callable[[str], zenoh.Sessi
 
 @pytest.mark.parametrize("key", ["trajectory", "estop", "gripper", "unlock"])
 def test_a_guest_cannot_command_an_adapter(roles: Callable[[str], zenoh.Session], key: str) -> None:
-    guest, adapter = roles("guest"), roles("adapter")
+    guest, adapter = roles("guest"), roles("adapter-desk4")
     assert not delivered(guest, f"armd/desk4/{key}", adapter)
 
 
@@ -134,19 +148,19 @@ def test_a_guest_cannot_watch_trajectories(roles: Callable[[str], zenoh.Session]
 def test_an_adapter_cannot_answer_for_the_service(roles: Callable[[str], zenoh.Session]) -> None:
     """The spoof of the issue: a complete armd/** queryable declared with the adapter's
     credentials answered operators' stops while the service was away."""
-    adapter, operator = roles("adapter"), roles("operator")
+    adapter, operator = roles("adapter-desk4"), roles("operator")
     assert not answered(operator, "armd/desk4/stop", adapter)
 
 
 def test_an_adapter_cannot_ask_verbs_or_command_other_adapters(roles: Callable[[str], zenoh.Session]) -> None:
-    service, adapter, other = roles("service"), roles("adapter"), roles("adapter")
+    service, adapter, other = roles("service"), roles("adapter-desk4"), roles("adapter-desk4")
     assert not answered(adapter, "armd/desk4/move", service)
     assert not delivered(adapter, "armd/desk4/trajectory", other)
     assert not delivered(adapter, "armd/desk4/estop", other)
 
 
 def test_an_operator_cannot_bypass_the_service_or_speak_for_an_adapter(roles: Callable[[str], zenoh.Session]) -> None:
-    operator, adapter, service, other = roles("operator"), roles("adapter"), roles("service"), roles("operator")
+    operator, adapter, service, other = roles("operator"), roles("adapter-desk4"), roles("service"), roles("operator")
     assert not delivered(operator, "armd/desk4/trajectory", adapter)  # (trajectories come checked, from the service)
     assert not delivered(operator, "armd/desk4/gripper", adapter)
     assert not delivered(operator, "armd/desk4/state", service)
@@ -155,7 +169,40 @@ def test_an_operator_cannot_bypass_the_service_or_speak_for_an_adapter(roles: Ca
 
 
 def test_the_service_cannot_speak_for_an_adapter(roles: Callable[[str], zenoh.Session]) -> None:
-    service, observer, adapter = roles("service"), roles("service"), roles("adapter")
+    service, observer, adapter = roles("service"), roles("service"), roles("adapter-desk4")
     assert not delivered(service, "armd/desk4/state", observer)
     assert not token_seen(service, "armd/desk4/adapter/fake", observer)
     assert not delivered(service, "armd/desk4/unlock", adapter)
+
+
+def test_an_adapter_cannot_speak_or_hear_for_another_arm(roles: Callable[[str], zenoh.Session]) -> None:
+    """Each arm's adapter its own user: desk4's credentials, stolen or misused, say nothing for
+    gupta3 and hear none of its commands."""
+    service, desk4 = roles("service"), roles("adapter-desk4")
+    assert not delivered(desk4, "armd/gupta3/state", service)
+    assert not delivered(desk4, "armd/gupta3/events", service)
+    assert not token_seen(desk4, "armd/gupta3/adapter/fake", service)
+    for key in ("trajectory", "estop", "gripper"):
+        assert not delivered(service, f"armd/gupta3/{key}", desk4), key
+    assert not delivered(roles("operator"), "armd/gupta3/unlock", desk4)
+
+
+def test_an_adapter_cannot_give_its_own_commands_or_watch_others(roles: Callable[[str], zenoh.Session]) -> None:
+    adapter, twin, other = roles("adapter-desk4"), roles("adapter-desk4"), roles("adapter-gupta3")
+    assert not delivered(adapter, "armd/desk4/gripper", twin)  # (gripper commands come from the service)
+    assert not delivered(adapter, "armd/desk4/unlock", twin)  # (an unlock is an operator's word)
+    assert not delivered(twin, "armd/desk4/state", adapter)  # it says its state; it watches nobody's
+    assert not delivered(other, "armd/gupta3/events", adapter)
+
+
+@pytest.mark.parametrize("key", ["state", "events"])
+def test_a_guest_cannot_watch_an_arm(roles: Callable[[str], zenoh.Session], key: str) -> None:
+    adapter, guest = roles("adapter-desk4"), roles("guest")
+    assert not delivered(adapter, f"armd/desk4/{key}", guest)
+
+
+def test_neither_the_service_nor_an_operator_can_put_an_adapters_events(roles: Callable[[str], zenoh.Session]) -> None:
+    """An adapter's `accepted` is what makes a move succeed: nobody else may say it."""
+    service, operator, observer = roles("service"), roles("operator"), roles("service")
+    assert not delivered(service, "armd/desk4/events", observer)
+    assert not delivered(operator, "armd/desk4/events", observer)

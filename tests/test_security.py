@@ -37,7 +37,8 @@ def secured(tmp_path: Path) -> Iterator[dict[str, Path]]:
     port = free_port()
     router_conf = _copy("router.json5", tmp_path, port, **{"docs/security/users.txt": str(DOCS / "users.txt")})
     router = zenoh.open(zenoh.Config.from_file(str(router_conf)))
-    confs = {who: _copy(f"{who}.json5", tmp_path, port) for who in ("service", "adapter", "operator", "guest")}
+    sides = ("service", "operator", "guest", *(f"adapter-{name}" for name in robots.names()))
+    confs = {who: _copy(f"{who}.json5", tmp_path, port) for who in sides}
     confs["intruder"] = _copy(
         "guest.json5", tmp_path, port, "intruder.json5", **{'password: "guest"': 'password: "wrong"'}
     )
@@ -49,13 +50,16 @@ def test_only_trusted_users_move_arms(secured: dict[str, Path]) -> None:
     arm = robots.load("gupta3")
     svc_session = zenoh.open(network_config(config_file=str(secured["service"])))
     service = Service(svc_session, {"gupta3": arm})
-    adapter_session = zenoh.open(network_config(config_file=str(secured["adapter"])))
+    adapter_session = zenoh.open(network_config(config_file=str(secured["adapter-gupta3"])))
     sim = SimAdapter(adapter_session, arm, time_scale=5.0)
     guest = ArmClient(config=str(secured["guest"]), timeout=2.0)
     operator = ArmClient(config=str(secured["operator"]), timeout=5.0)
     try:
         wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter")  # type: ignore[attr-defined]
         start = sim.position.copy()
+        # the adapter's state reaches the service (its user may put its arm's state, and see that
+        # the service follows every arm's)
+        wait_for(lambda: operator.state("gupta3")["source"] == "adapter", what="the adapter's state")
         # read-only verbs are open to a guest
         assert guest.ik("gupta3", arm.fk(np.array([0.2, 1.0, -1.1])).tolist()).status == "ok"
         assert [r["name"] for r in guest.robots()] == ["gupta3"]
@@ -176,7 +180,7 @@ def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
     )
     router = zenoh.open(zenoh.Config.from_file(str(router_conf)))
     confs = {}
-    for who in ("service", "adapter", "operator", "guest"):
+    for who in ("service", "adapter-gupta3", "operator", "guest"):
         path = _copy(f"{who}.json5", tmp_path, tcp_port)
         text = path.read_text()
         for old, new in uncomment.items():
@@ -187,7 +191,7 @@ def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
     arm = robots.load("gupta3")
     svc_session = zenoh.open(network_config(config_file=str(confs["service"])))
     service = Service(svc_session, {"gupta3": arm})
-    adapter_session = zenoh.open(network_config(config_file=str(confs["adapter"])))
+    adapter_session = zenoh.open(network_config(config_file=str(confs["adapter-gupta3"])))
     sim = SimAdapter(adapter_session, arm, time_scale=5.0)
     guest = ArmClient(config=str(confs["guest"]), timeout=2.0)
     operator = ArmClient(config=str(confs["operator"]), timeout=5.0)
