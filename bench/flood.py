@@ -10,15 +10,23 @@ service (the peer), then during the flood.
 Reported: median / p99 / max of each, idle and flooded, and the flood's batches answered.
 Issue 14's bars: under the flood a stop answered within 0.3 s and a move within 2 s.
 
-Run: ``.venv/bin/python bench/flood.py [--batches 80] [--targets 10000] [--cycles 10]``.
+``--secure``: the same through the secure setup (docs/security.md), as a deployment has it: a
+router of its own (``armd router``) with logins and the ACL, written by ``armd.service.
+secure_setup`` with fresh passwords; the service logs in as ``armd-service``, insomniac's
+simulated arm as its adapter (``armd adapter sim``), the flood as the guest and the operator as
+the operator.
+
+Run: ``.venv/bin/python bench/flood.py [--batches 80] [--targets 10000] [--cycles 10] [--secure]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -32,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 GOALS = ([1.2, 2.0, -1.8, 1.0, 1.0], [-0.9, 1.0, -0.6, -1.0, -1.0])  # insomniac, far apart: seconds each
 
 
-def flood(endpoint: str, batches: int, targets: int, seconds: float) -> None:
+def flood(endpoint: str | None, batches: int, targets: int, seconds: float, config: str | None = None) -> None:
     """The flood process: ``batches`` IK batches in flight for ``seconds``; prints how many were answered."""
     import zenoh
 
@@ -43,7 +51,7 @@ def flood(endpoint: str, batches: int, targets: int, seconds: float) -> None:
     rng = np.random.default_rng(0)
     qs = rng.uniform(arm.limits.lower, arm.limits.upper, size=(targets, arm.nq))
     body = json.dumps({"targets": [arm.fk(q).tolist() for q in qs]}).encode()
-    session = zenoh.open(network_config(connect=[endpoint]))
+    session = zenoh.open(network_config(connect=[endpoint] if endpoint else None, config_file=config))
     end = time.monotonic() + seconds
     answered = [0]
     lock = threading.Lock()
@@ -65,12 +73,12 @@ def flood(endpoint: str, batches: int, targets: int, seconds: float) -> None:
     session.close()
 
 
-def operator(endpoint: str, cycles: int) -> dict[str, list[float]]:
+def operator(endpoint: str | None, cycles: int, config: str | None = None) -> dict[str, list[float]]:
     """Move, stop 0.3 s in, ``cycles`` times: each reply's latency [ms]."""
     from armd.clients import ArmClient
 
     out: dict[str, list[float]] = {"move": [], "stop": []}
-    with ArmClient(endpoint, timeout=30.0) as c:
+    with ArmClient(endpoint, config=config, timeout=30.0) as c:
         for k in range(cycles):
             t = time.monotonic()
             c.move("insomniac", GOALS[k % 2])
@@ -81,6 +89,19 @@ def operator(endpoint: str, cycles: int) -> dict[str, list[float]]:
             out["stop"].append((time.monotonic() - t) * 1e3)
             time.sleep(0.5)
     return out
+
+
+def secure(directory: Path, endpoint: str) -> dict[str, Path]:
+    """The secure setup for the catalogue in ``directory``, on ``endpoint``, fresh passwords:
+    each side's file, by side (``router``, ``service``, ``adapter-<robot>``, ``operator``, ``guest``)."""
+    from armd import robots
+    from armd.service import secure_setup
+
+    names = robots.names()
+    contents = secure_setup.files(
+        names, secure_setup.new_passwords(names), str(directory / "users.txt"), endpoint=endpoint
+    )
+    return {p.name.removesuffix(".json5"): p for p in secure_setup.write(directory, contents)}
 
 
 def _cell(ms: list[float]) -> str:
@@ -97,20 +118,35 @@ def main() -> None:
     ap.add_argument("--cycles", type=int, default=10, help="move-stop cycles, idle and flooded (default 10)")
     ap.add_argument("--worker", choices=["flood"], help=argparse.SUPPRESS)
     ap.add_argument("--endpoint", help=argparse.SUPPRESS)
+    ap.add_argument("--config", help=argparse.SUPPRESS)
     ap.add_argument("--seconds", type=float, default=60.0, help=argparse.SUPPRESS)
+    ap.add_argument("--secure", action="store_true", help="through a router with logins and the ACL (guests flood)")
     args = ap.parse_args()
     if args.worker == "flood":
-        flood(args.endpoint, args.batches, args.targets, args.seconds)
+        flood(args.endpoint, args.batches, args.targets, args.seconds, args.config)
         return
     from armd.service.zconfig import free_endpoint
 
     endpoint = free_endpoint()
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "armd.cli", "serve", "--sim", "--listen", endpoint],
-        cwd=ROOT,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    tmp = Path(tempfile.mkdtemp(prefix="armd-flood-"))
+    sides = secure(tmp, endpoint) if args.secure else None
+    cli = [sys.executable, "-m", "armd.cli"]
+    quiet = {"cwd": ROOT, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    if sides is None:
+        daemons = [subprocess.Popen([*cli, "serve", "--sim", "--listen", endpoint], **quiet)]  # type: ignore[call-overload]
+        where: dict[str, Any] = {"endpoint": endpoint}
+        guest: list[str] = ["--endpoint", endpoint]
+    else:
+        daemons = [subprocess.Popen([*cli, "router", "--config", str(sides["router"])], **quiet)]  # type: ignore[call-overload]
+        time.sleep(1.0)
+        daemons += [
+            subprocess.Popen([*cli, "serve", "--config", str(sides["service"])], **quiet),  # type: ignore[call-overload]
+            subprocess.Popen(  # type: ignore[call-overload]
+                [*cli, "adapter", "sim", "insomniac", "--config", str(sides["adapter-insomniac"])], **quiet
+            ),
+        ]
+        where = {"endpoint": None, "config": str(sides["operator"])}
+        guest = ["--config", str(sides["guest"])]
     results: dict[str, Any] = {}
     try:
         from armd.clients import ArmClient
@@ -118,7 +154,7 @@ def main() -> None:
         deadline = time.monotonic() + 180
         while True:  # (a first start compiles: a minute)
             try:
-                with ArmClient(endpoint, timeout=2.0) as c:
+                with ArmClient(where["endpoint"], config=where.get("config"), timeout=2.0) as c:
                     if c.state("insomniac")["source"] == "adapter":
                         break
             except Exception:  # not up yet
@@ -126,7 +162,7 @@ def main() -> None:
             if time.monotonic() > deadline:
                 raise RuntimeError("the service did not come up")
             time.sleep(0.5)
-        results["idle"] = operator(endpoint, args.cycles)
+        results["idle"] = operator(where["endpoint"], args.cycles, where.get("config"))
         seconds = args.cycles * 4.0 + 20.0
         fl = subprocess.Popen(
             [
@@ -134,8 +170,7 @@ def main() -> None:
                 __file__,
                 "--worker",
                 "flood",
-                "--endpoint",
-                endpoint,
+                *guest,
                 "--batches",
                 str(args.batches),
                 "--targets",
@@ -150,14 +185,17 @@ def main() -> None:
         assert fl.stdout is not None
         assert fl.stdout.readline().strip() == "ready"
         time.sleep(5.0)  # the flood in full
-        results["flood"] = operator(endpoint, args.cycles)
+        results["flood"] = operator(where["endpoint"], args.cycles, where.get("config"))
         out, _ = fl.communicate(timeout=seconds + 120)
         results["answered"] = json.loads(out.strip().splitlines()[-1])["answered"]
     finally:
-        serve.terminate()
-        serve.wait(20)
+        for d in reversed(daemons):
+            d.terminate()
+            d.wait(20)
+        shutil.rmtree(tmp, ignore_errors=True)
+    how = "through the secure setup (guests flood, an operator moves)" if args.secure else "on the default setup"
     print(
-        f"{args.batches} IK batches of {args.targets} targets in flight "
+        f"{args.batches} IK batches of {args.targets} targets in flight {how} "
         f"({results.get('answered', '?')} answered during the run); latency [ms], median / p99 / max:\n"
     )
     print("| request | idle | flooded |")

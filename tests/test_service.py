@@ -39,6 +39,25 @@ def test_robots_and_info(client: ArmClient) -> None:
     assert info["state"]["source"] in ("neutral", "commanded", "adapter")
 
 
+def test_every_reply_names_the_service_that_gave_it(client: ArmClient, service: object) -> None:
+    """An answer, an error of the request's, a bad key, an unknown robot: each names the
+    replica (its id), so an operator can tell who answered."""
+    me = service.id  # type: ignore[attr-defined]
+    asks = [
+        ("robots", b"{}", "ok"),
+        ("desk4/info", b"{}", "ok"),
+        ("sg5ut/fk", b'{"q": [0, 1, -0.5, -0.4]}', "ok"),
+        ("sg5ut/fk", b'{"q": [true, 1, -0.5, -0.4]}', "err"),
+        ("nosuch/ik", b'{"target": [0.2, 0, 0.1]}', "err"),
+        ("desk4/nosuchverb", b"{}", "err"),
+        ("desk4/ik", b"not json", "err"),
+    ]
+    for key, payload, kind in asks:
+        got, reply = raw(client, key, payload)
+        assert got == kind and reply["service"] == me, (key, reply)
+    assert len(me) >= 8
+
+
 def test_fk(client: ArmClient) -> None:
     arm = robots.load("sg5ut")
     q = [0.2, 1.0, -0.5, -0.4]

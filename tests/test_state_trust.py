@@ -4,6 +4,7 @@ succeeds only once an adapter accepted its trajectory. Through real Zenoh sessio
 from __future__ import annotations
 
 import json
+import logging
 import time
 from collections.abc import Iterator
 
@@ -63,6 +64,23 @@ def test_a_state_from_no_live_adapter_is_ignored_and_counted(
     wait_for(lambda: _ignored(service) >= before + 50, what="the forged states counted")
     s = client.state(ARM)
     assert s["source"] != "adapter" and not np.allclose(s["position"], far)
+
+
+def test_ignored_states_are_logged_at_a_bounded_rate_with_their_reasons(
+    client: ArmClient, service: object, forger: zenoh.Session, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A forger's flood is counted, not logged message by message: at most one line every
+    SAY_EVERY seconds, saying how many were ignored and why."""
+    caplog.set_level(logging.WARNING, logger="armd.service.server")
+    service._said = 0.0  # type: ignore[attr-defined]  # (another test may have just logged)
+    before = _ignored(service)
+    for seq in range(200):
+        forger.put(f"armd/{ARM}/state", _state(list(robots.load(ARM).neutral), "forged00002", seq))
+    forger.put(f"armd/{ARM}/state", b"not json")
+    wait_for(lambda: _ignored(service) >= before + 201, what="the flood counted")
+    lines = [r.getMessage() for r in caplog.records if "ignoring states" in r.getMessage()]
+    assert len(lines) == 1, lines  # 201 ignored in well under SAY_EVERY: one line
+    assert "no live adapter of that id" in lines[0] and f"armd/{ARM}/state" in lines[0]
 
 
 def test_a_live_adapters_state_is_used_and_forgeries_beside_it_are_not(
