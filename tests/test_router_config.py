@@ -108,6 +108,40 @@ def test_the_tls_router_listens_where_its_file_says(tmp_path: Path, certs: Path)
             local.close()
 
 
+def test_a_routers_file_connects_where_it_says(tmp_path: Path) -> None:
+    """`armd router --config FILE` whose file connects to another router (two machines' routers,
+    docs/deployment.md): it joins it, and a query from one side is answered on the other; the
+    line it prints at start says so."""
+    a, b = free_port(), free_port()
+    first = zenoh.open(network_config(listen=[f"tcp/127.0.0.1:{a}"], mode="router"))
+    conf = tmp_path / "second.json5"
+    conf.write_text(
+        f'{{ mode: "router", listen: {{ endpoints: ["tcp/127.0.0.1:{b}"] }}, '
+        f'connect: {{ endpoints: ["tcp/127.0.0.1:{a}"] }}, scouting: {{ multicast: {{ enabled: false }} }} }}'
+    )
+    answers = first.declare_queryable("armd-test/where", lambda q: q.reply(q.key_expr, b"on the first router"))
+    try:
+        with running("router", "--config", str(conf), ready="zenoh router") as (_, line):
+            assert f"listening on tcp/127.0.0.1:{b}, connected to tcp/127.0.0.1:{a}" in line, line
+            far = zenoh.open(client_config([f"tcp/127.0.0.1:{b}"]))
+            try:
+                got: list[bytes] = []
+
+                def asked() -> bool:
+                    got.extend(
+                        r.ok.payload.to_bytes() for r in far.get("armd-test/where", timeout=1.0) if r.ok is not None
+                    )
+                    return bool(got)
+
+                wait_for(asked, what="a reply through both routers")
+                assert got[0] == b"on the first router"
+            finally:
+                far.close()
+    finally:
+        answers.undeclare()
+        first.close()
+
+
 def test_listen_replaces_the_files_endpoints(tmp_path: Path, certs: Path) -> None:
     """`armd router --config FILE --listen E`: E alone is opened; the file's ports stay closed."""
     tls_port, tcp_port, port = free_port(), free_port(), free_port()
