@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 import time
 from collections.abc import Iterator
 
@@ -150,6 +151,56 @@ def test_a_forger_numbering_ahead_of_the_adapter_neither_steers_nor_locks_it_out
         wait_for(lambda: client.state(ARM)["source"] == "adapter", timeout=DISPUTE_HOLD + 5, what="the adapter again")
         assert np.allclose(client.state(ARM)["position"], start, atol=1e-9)
     finally:
+        adapter.close()
+
+
+def test_stop_and_move_are_answered_while_forged_states_pour_in(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, forger: zenoh.Session
+) -> None:
+    """The issue's forger at 500 Hz, out of the limits, over the speed limits, 1e308, under the
+    live adapter's id and under none: every stop and move is still answered, and the move
+    starts where the adapter says the arm is (before, each answered bad_request)."""
+    arm = robots.load(ARM)
+    start = (np.array(arm.neutral) + 0.1).tolist()
+    adapter = SimAdapter(adapter_session, arm, start=np.array(start))
+    stop = threading.Event()
+    outside = (np.array(arm.limits.upper) + 0.5).tolist()
+    fast = (arm.limits.velocity * 10).tolist()
+
+    def pour() -> None:
+        seq = 10**6
+        while not stop.is_set():
+            seq += 1
+            for who in (adapter.id, "nobody000001"):
+                forger.put(f"armd/{ARM}/state", _state(outside, who, seq))
+                forger.put(f"armd/{ARM}/state", _state(start, who, seq + 1, velocity=fast))
+                forger.put(f"armd/{ARM}/state", _state([1e308] * arm.nq, who, seq + 2))
+            seq += 2
+            time.sleep(0.002)
+
+    thread = threading.Thread(target=pour, daemon=True)
+    try:
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", what="the adapter's state")
+        thread.start()
+        time.sleep(0.2)
+        for _ in range(3):
+            client.stop(ARM)  # answered, never bad_request
+            s = client.state(ARM)
+            assert s["source"] != "adapter" or np.allclose(s["position"], start, atol=1e-9), s
+        # a move meanwhile: planned from what the service has, refused by the adapter where that
+        # is not where the arm is, planned again from the adapter's word
+        r = client.call(f"{ARM}/move", {"goal": (np.array(start) + 0.05).tolist()})
+        assert np.allclose(r["start"]["position"], start, atol=1e-6) and r["adapter"] == adapter.id
+        client.call(f"{ARM}/stop", {})
+        stop.set()
+        thread.join()
+        wait_for(lambda: client.state(ARM)["source"] == "adapter", timeout=DISPUTE_HOLD + 5, what="the adapter again")
+        wait_for(lambda: not client.state(ARM)["moving"], what="the arm at rest")
+        here = client.state(ARM)["position"]
+        r = client.call(f"{ARM}/move", {"goal": list(arm.neutral)})
+        assert r["adapter"] == adapter.id and np.allclose(r["start"]["position"], here, atol=1e-6)
+    finally:
+        stop.set()
         adapter.close()
 
 
