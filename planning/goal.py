@@ -56,12 +56,11 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
     return r.q
 
 
-def goal_point(robot: Robot, goal: object, seed: FloatArray) -> tuple[FloatArray, float | None]:
-    """Tool point [m] and asked pitch [rad] (None: free) of a goal, for a Cartesian line."""
+def goal_point(robot: Robot, goal: object, seed: FloatArray) -> tuple[FloatArray, float | None, float | None]:
+    """Tool point [m], asked pitch [rad] (None: free) and asked tool roll [rad] (None: the
+    start's kept) of a goal, for a Cartesian line."""
     cg = cartesian(goal)
     if cg is None:
         q = goal_configuration(robot, goal, seed)
-        return robot.fk(q), (robot.tool_pitch(q) if robot.chooses_pitch else None)
-    if cg.roll is not None:
-        raise BadRequest("roll is for a joint path: a line keeps the start's roll", field="goal")
-    return target_point(robot, cg.target, seed), approach_pitch(robot, cg.approach)
+        return robot.fk(q), (robot.tool_pitch(q) if robot.chooses_pitch else None), None
+    return target_point(robot, cg.target, seed), approach_pitch(robot, cg.approach), cg.roll

@@ -2,9 +2,10 @@
 
 1. The geometric path: IK on a grid along the segment (every ``GRID_STEP`` m), each seeded
    by the previous answer, with the tool pitch interpolated from the start's to the goal's
-   (wrist arms). A grid point the IK cannot reach exactly, or a jump in joint space (a
-   branch flip: elbow up to down, the yaw swinging round), rejects the line with the reason
-   and where it happens.
+   (wrist arms), and where the goal asks a tool roll, the wrist roll joint's angle from the
+   start's to the one that gives it (the turn nearest the start's, within its limits). A grid
+   point the IK cannot reach exactly, or a jump in joint space (a branch flip: elbow up to
+   down, the yaw swinging round), rejects the line with the reason and where it happens.
 2. The timing: a jerk-limited profile of the path parameter s (Ruckig, one degree of
    freedom, from rest to rest), its velocity, acceleration and jerk limits derived from the
    joints' limits and the path's joint-space derivatives, scaled by ``speed``.
@@ -21,7 +22,7 @@ from collections.abc import Callable
 import numpy as np
 import ruckig
 
-from armd.errors import PlanRejected, TrajectoryTooLong
+from armd.errors import BadRequest, PlanRejected, TrajectoryTooLong
 from armd.robots import Robot
 from armd.robots.angles import wrap, wrap_array
 from armd.robots.types import FloatArray
@@ -38,9 +39,16 @@ SLOWDOWN = 0.8
 
 
 class LinePath:
-    """The line's geometry: endpoints, pitch interpolation, and IK at any path parameter."""
+    """The line's geometry: endpoints, pitch and roll interpolation, and IK at any path parameter."""
 
-    def __init__(self, robot: Robot, start: JointState, goal: FloatArray, goal_pitch: float | None) -> None:
+    def __init__(
+        self,
+        robot: Robot,
+        start: JointState,
+        goal: FloatArray,
+        goal_pitch: float | None,
+        goal_roll: float | None = None,
+    ) -> None:
         self.robot = robot
         self.q0 = start.position
         self.p0 = robot.fk(self.q0)
@@ -51,6 +59,23 @@ class LinePath:
         self.pitch0 = robot.tool_pitch(self.q0) if self.has_pitch else 0.0
         asked = self.pitch0 if goal_pitch is None else goal_pitch
         self.dpitch = wrap(asked - self.pitch0) if self.has_pitch else 0.0
+        # the asked roll: the roll joint's angle held along the line, from the start's to the goal's
+        self.roll_index = -1
+        self.roll0 = self.roll1 = 0.0
+        if goal_roll is not None:
+            self.roll1 = robot.roll_angle(goal_roll, self.q0)  # (BadRequest: no such roll, or out of its reach)
+            assert robot.roll_joint is not None
+            self.roll_index = robot.roll_joint.index
+            self.roll0 = float(self.q0[self.roll_index])
+            if self.length == 0.0 and abs(self.roll1 - self.roll0) > 1e-12:
+                raise BadRequest(
+                    "a line that does not move the tool point cannot turn the roll: plan a joint path", field="goal"
+                )
+
+    def rolls(self, ss: FloatArray) -> FloatArray:
+        """The roll joint's angle [rad] at each path parameter (an asked roll only)."""
+        f = np.zeros_like(ss) if self.length == 0 else ss / self.length
+        return self.roll0 + f * (self.roll1 - self.roll0)
 
     def point(self, s: float) -> FloatArray:
         f = 0.0 if self.length == 0 else s / self.length
@@ -74,16 +99,29 @@ class LinePath:
 
     def ik_many(self, ss: FloatArray, seeds: FloatArray) -> FloatArray:
         """IK at every path parameter (batch), each from its seed row; refuses the line at the
-        first point that is not reached exactly."""
+        first point that is not reached exactly (with the asked roll: the batch keeps each
+        seed's roll where the target is reachable with it, and the seeds hold the line's)."""
+        ri = self.roll_index
+        if ri >= 0:
+            seeds = np.array(seeds, dtype=float)
+            seeds[:, ri] = self.rolls(ss)
         r = solve_ik_batch(self.robot, self.points(ss), approach=self.pitches(ss), seeds=seeds)
-        bad = np.flatnonzero(r.status != "ok")
+        ok = r.status == "ok"
+        if ri >= 0:
+            ok &= np.abs(r.q[:, ri] - seeds[:, ri]) <= 1e-9
+        bad = np.flatnonzero(~ok)
         if len(bad):
             i = int(bad[0])
             self.ik(float(ss[i]), seeds[i])  # raises with the single solver's reason
         return r.q
 
     def ik(self, s: float, seed: FloatArray) -> FloatArray:
-        r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed)
+        roll = None
+        if self.roll_index >= 0:
+            seed = np.array(seed, dtype=float)
+            seed[self.roll_index] = self.rolls(np.array([s]))[0]
+            roll = self.robot.tool_roll(seed)
+        r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed, roll=roll)
         if r.status != "ok":
             raise PlanRejected(
                 f"the line leaves the reachable space {s:.4f} m from the start at {self.point(s).round(4).tolist()}: "
@@ -172,8 +210,12 @@ def line_samples(
     *,
     max_samples: int | None = None,
     check: Callable[[], None] | None = None,
+    goal_roll: float | None = None,
 ) -> tuple[float, FloatArray, FloatArray, FloatArray, FloatArray, Evaluator]:
     """(duration, times, position, velocity, acceleration, evaluator) of the line.
+
+    ``goal_roll``: the tool roll [rad] to end at (an arm with a wrist roll), turned evenly
+    along the line; None keeps the start's.
 
     ``max_samples``: refuse (:class:`TrajectoryTooLong`) a timing with more samples, before
     sampling it. ``check``: called between the passes (each an IK batch over every sample);
@@ -181,7 +223,7 @@ def line_samples(
     """
     if start.moving:
         raise PlanRejected("a line starts with the arm at rest: stop first, or plan a joint path", field="start")
-    line = LinePath(robot, start, goal, goal_pitch)
+    line = LinePath(robot, start, goal, goal_pitch, goal_roll)
     dt = 1.0 / rate_hz
     ss, qs = _grid(line)
     v, a, j = _path_limits(robot, ss, qs, speed)

@@ -86,9 +86,9 @@ def plan(
     if path == "line":
         if via:
             raise BadRequest("a line goes straight to its goal: via points are for joint paths", field="via")
-        point, pitch = goal_point(robot, goal, s.position)
+        point, pitch, roll = goal_point(robot, goal, s.position)
         duration, times, P, V, A, evaluate = line_samples(
-            robot, s, point, pitch, spd, rate, max_samples=max_samples, check=check
+            robot, s, point, pitch, spd, rate, max_samples=max_samples, check=check, goal_roll=roll
         )
         return build(robot, "line", rate, duration, times, P, V, A, evaluate)
     if isinstance(via, (str, bytes)) or not isinstance(via, Sequence):

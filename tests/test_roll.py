@@ -10,9 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from armd import robots
+from armd import planning, robots
 from armd.clients import ArmClient
 from armd.errors import BadRequest, ServiceError
+from armd.robots.angles import wrap
 from armd.robots.chain import tool_roll
 from armd.solvers import solve_ik, solve_ik_batch
 
@@ -144,9 +145,45 @@ def test_roll_over_the_service(client: ArmClient) -> None:
     assert client.ik("gupta3", [0.2, 0.0, 0.1]).roll is None
     plan = client.plan("insomniac", {"target": target.tolist(), "roll": -0.5})
     assert arm.tool_roll(np.array(plan.position[-1])) == pytest.approx(-0.5, abs=1e-6)
+    line = client.plan("insomniac", {"target": target.tolist(), "roll": -0.5}, path="line")
+    assert arm.tool_roll(np.array(line.position[-1])) == pytest.approx(-0.5, abs=1e-6)
     with pytest.raises(ServiceError) as e:
-        client.plan("insomniac", {"target": target.tolist(), "roll": -0.5}, path="line")
-    assert e.value.code == "bad_request" and "line keeps the start's roll" in str(e.value)
+        client.plan("gupta3", {"target": [0.2, 0.0, 0.1], "roll": 0.3}, path="line")
+    assert e.value.code == "bad_request" and e.value.field == "roll"
     with pytest.raises(ServiceError) as e:
         client.ik("gupta3", [0.2, 0.0, 0.1], roll=0.3)
     assert e.value.code == "bad_request" and e.value.field == "roll"
+
+
+@pytest.mark.parametrize("name", ["insomniac", "so101"])
+def test_a_line_turns_the_roll_evenly_and_keeps_the_tool_on_the_line(name: str) -> None:
+    """A line with a roll: every sample's tool point on the segment, the roll joint turning
+    evenly with the distance along it (from the start's angle to the one that gives the roll),
+    and the last sample at the roll asked; on the SO-101 the roll moves the tool point too."""
+    arm = robots.load(name)
+    assert arm.roll_joint is not None
+    ri = arm.roll_joint.index
+    start = np.array(arm.neutral)
+    p0 = arm.fk(start)
+    p1 = p0 + np.array([0.0, 0.03, -0.02])
+    want = wrap(arm.tool_roll(start) + 0.8)
+    traj = planning.plan(arm, start, {"target": p1.tolist(), "roll": want}, path="line")
+    q = np.asarray(traj.position)
+    pts = np.array([arm.fk(x) for x in q])
+    u = (p1 - p0) / np.linalg.norm(p1 - p0)
+    along = (pts - p0) @ u
+    off = np.linalg.norm((pts - p0) - along[:, None] * u, axis=1)
+    assert off.max() <= 1e-6 and along.min() >= -1e-6 and along.max() <= np.linalg.norm(p1 - p0) + 1e-6
+    assert arm.tool_roll(q[-1]) == pytest.approx(want, abs=1e-6) and np.linalg.norm(pts[-1] - p1) <= 1e-6
+    turned = (q[:, ri] - q[0, ri]) / (q[-1, ri] - q[0, ri])
+    assert np.allclose(turned, along / along[-1], atol=1e-6)  # even with the distance along the line
+    assert all(arm.limits.contains(x) for x in q)
+
+
+def test_a_line_that_does_not_move_cannot_turn_the_roll() -> None:
+    arm = robots.load("insomniac")
+    start = np.array(arm.neutral)
+    with pytest.raises(BadRequest, match="plan a joint path"):
+        planning.plan(
+            arm, start, {"target": arm.fk(start).tolist(), "roll": wrap(arm.tool_roll(start) + 0.5)}, path="line"
+        )
