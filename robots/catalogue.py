@@ -24,10 +24,12 @@ from armd.errors import RobotFileError, UnknownRobot
 
 from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
 from .chain import recognise, roll_joint
+from .collision import GROUND, CollisionModel
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .robot import Robot
 from .sensors import RangeSensor
+from .types import FloatArray
 from .units import parse_angle
 
 if sys.version_info >= (3, 11):
@@ -244,6 +246,7 @@ class _Builder:
             found = recognise(model, tool_frame, joint_names, limits, neutral, tool_axis)
             geometry, family_note = found.geometry, found.reason
         roll = roll_joint(model, tool_frame, joint_names, geometry, tool_axis) if geometry is not None else None
+        collision = self._collision(top, model, urdf_name, neutral)
         actuators, gripper = self._actuators(top, index, limits)
         sensors = self._sensors(top, frames)
         controller: dict[str, object] = {}
@@ -270,6 +273,7 @@ class _Builder:
             family_note=family_note,
             tool_axis=tool_axis,
             roll_joint=roll,
+            collision=collision,
         )
 
     def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:
@@ -281,9 +285,47 @@ class _Builder:
             text = _continuous_as_revolute(text, self.folder.name)
             if held:
                 text = _held_fixed(text, held)
-            return pin.buildModelFromXML(text, mimic=True)
+            model = pin.buildModelFromXML(text, mimic=True)
+            self.urdf_text = text  # (as the model was built from it: the collision shapes' too)
+            return model
         except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++; ElementTree ParseError
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
+
+    def _collision(self, top: _Table, model: pin.Model, urdf_name: str, neutral: FloatArray) -> CollisionModel:
+        """The URDF's collision shapes, ``[world] ground`` (the floor's height [m] in the base
+        frame, default 0; ``false``: none) and ``[collision] allowed`` (pairs of link names
+        never checked); a neutral pose in collision is logged."""
+        world = top.table("world", {})
+        raw = world.raw("ground", 0.0)
+        ground = None if raw is False else world.number("ground", 0.0)
+        world.finish()
+        col = top.table("collision", {})
+        allowed = col.raw("allowed", [])
+        links = {f.name for f in model.frames}
+        if not isinstance(allowed, list) or not all(
+            isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in allowed
+        ):
+            raise col.error("allowed", f"must be a list of [link, link] pairs, got {allowed!r}")
+        for pair in allowed:
+            for link in pair:
+                if link not in links and link != GROUND:
+                    raise col.error("allowed", f"{urdf_name} has no link {link!r}; links: {', '.join(sorted(links))}")
+        col.finish()
+        try:
+            model_ = CollisionModel(model, self.urdf_text, ground, [(a, b) for a, b in allowed])
+        except Exception as e:  # Pinocchio's and coal's own errors (a mesh it cannot read, say)
+            raise RobotFileError(
+                str(self.folder / urdf_name), None, f"its collision shapes cannot be loaded: {e}"
+            ) from None
+        hit = model_.first_contact(neutral)
+        if hit is not None:  # (said, not refused: IK and plans do not check collisions yet)
+            log.warning(
+                "%s: the neutral pose is in collision: %s (set [world] ground to the floor's height in the base "
+                "frame, or allow the pair in [collision] allowed if they touch by design)",
+                self.folder.name,
+                hit,
+            )
+        return model_
 
     def _rooted_at(self, model: pin.Model, base_frame: str, meta: _Table, urdf_name: str) -> pin.Model:
         """``model`` with ``base_frame`` as its world frame: targets, FK, plans and lines are in

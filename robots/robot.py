@@ -21,6 +21,7 @@ from armd.errors import BadRequest
 from .actuators import ActuatorMap, Gripper
 from .angles import wrap
 from .chain import RollJoint
+from .collision import CollisionModel
 from .geometry import Geometry
 from .limits import JointLimits
 from .sensors import RangeSensor
@@ -78,6 +79,7 @@ class Robot:
         family_note: str = "",
         tool_axis: FloatArray | None = None,
         roll_joint: RollJoint | None = None,
+        collision: CollisionModel | None = None,
     ) -> None:
         self.name = name
         self.title = title
@@ -96,6 +98,7 @@ class Robot:
         self.controller = controller
         self.family_note = family_note
         self.roll_joint = roll_joint
+        self.collision = collision
         self.tool_axis = np.array([1.0, 0.0, 0.0]) if tool_axis is None else np.asarray(tool_axis, dtype=float)
         # state the layers above derive from the arm, made once and kept with it (the solver's arrays)
         self.derived: dict[str, object] = {}
