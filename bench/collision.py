@@ -21,7 +21,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from armd import robots  # noqa: E402
+from armd import robots
 
 
 def timed(fn: object, qs: np.ndarray) -> np.ndarray:
