@@ -99,7 +99,7 @@ class CollisionModel:
         if scratch is None:
             scratch = (self.model.createData(), pin.GeometryData(self.geometry))
             self._local.scratch = scratch
-        return scratch  # type: ignore[no-any-return]
+        return scratch
 
     def first_contact(self, q: FloatArray) -> Contact | None:
         """The first pair in collision at ``q`` [rad], or None: the arm is clear of itself and
