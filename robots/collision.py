@@ -72,7 +72,7 @@ class CollisionModel:
             if GROUND in (self.links[a], self.links[b]):
                 if max(ja, jb) == 0:  # the ground and the base: the base stands on it
                     continue
-            elif ja == jb or (ja == 0 and jb == 0) or self._neighbours(ja, jb, shaped):
+            elif ja == jb or self._neighbours(ja, jb, shaped):  # (ja == jb == 0: both fixed to the base)
                 continue
             if frozenset((self.links[a], self.links[b])) in allow:
                 continue
