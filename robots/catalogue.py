@@ -24,7 +24,7 @@ from armd.errors import RobotFileError, UnknownRobot
 
 from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
 from .chain import recognise, roll_joint
-from .collision import GROUND, CollisionModel
+from .collision import GROUND, CollisionModel, Obstacle
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .robot import Robot
@@ -298,10 +298,11 @@ class _Builder:
         world = top.table("world", {})
         raw = world.raw("ground", 0.0)
         ground = None if raw is False else world.number("ground", 0.0)
+        links = {f.name for f in model.frames}
+        obstacles = self._obstacles(world, links)
         world.finish()
         col = top.table("collision", {})
         allowed = col.raw("allowed", [])
-        links = {f.name for f in model.frames}
         if not isinstance(allowed, list) or not all(
             isinstance(p, list) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in allowed
         ):
@@ -312,7 +313,7 @@ class _Builder:
                     raise col.error("allowed", f"{urdf_name} has no link {link!r}; links: {', '.join(sorted(links))}")
         col.finish()
         try:
-            model_ = CollisionModel(model, self.urdf_text, ground, [(a, b) for a, b in allowed])
+            model_ = CollisionModel(model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles)
         except Exception as e:  # Pinocchio's and coal's own errors (a mesh it cannot read, say)
             raise RobotFileError(
                 str(self.folder / urdf_name), None, f"its collision shapes cannot be loaded: {e}"
@@ -326,6 +327,33 @@ class _Builder:
                 hit,
             )
         return model_
+
+    def _obstacles(self, world: _Table, links: set[str]) -> list[Obstacle]:
+        """``[[world.boxes]]`` (``size`` [x, y, z] m), ``[[world.spheres]]`` (``radius``),
+        ``[[world.cylinders]]`` (``radius``, ``length``, along its z): each at ``position``
+        [m] in the base frame, turned by ``rpy`` [rad], named by ``name`` (default: its kind
+        and number)."""
+        out: list[Obstacle] = []
+        for key, kind in (("boxes", "box"), ("spheres", "sphere"), ("cylinders", "cylinder")):
+            for i, t in enumerate(world.tables(key)):
+                name = t.string("name", f"{kind}{i}")
+                if name in links or name == GROUND or any(o.name == name for o in out):
+                    raise t.error("name", f"{name!r} is taken (by a link, the ground or another obstacle)")
+                if kind == "box":
+                    size = tuple(t.vector("size", 3))
+                    if min(size) <= 0:
+                        raise t.error("size", f"must be positive, got {list(size)}")
+                elif kind == "sphere":
+                    size = (t.number("radius", positive=True),)
+                else:
+                    size = (t.number("radius", positive=True), t.number("length", positive=True))
+                position = t.vector("position", 3)
+                rpy = t.vector("rpy", 3, [0.0, 0.0, 0.0], angle=True)
+                t.finish()
+                out.append(
+                    Obstacle(name, kind, size, (position[0], position[1], position[2]), (rpy[0], rpy[1], rpy[2]))
+                )
+        return out
 
     def _rooted_at(self, model: pin.Model, base_frame: str, meta: _Table, urdf_name: str) -> pin.Model:
         """``model`` with ``base_frame`` as its world frame: targets, FK, plans and lines are in

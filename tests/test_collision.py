@@ -15,7 +15,7 @@ import pytest
 
 from armd import robots, solvers
 from armd.errors import RobotFileError
-from armd.robots.collision import GROUND, CollisionModel, Contact
+from armd.robots.collision import GROUND, CollisionModel, Contact, Obstacle
 
 ARMS = robots.names()
 
@@ -31,6 +31,9 @@ def _fill(shape: object, n: int = 7) -> np.ndarray:
         g = np.stack(np.meshgrid(u, u, u, indexing="ij"), -1).reshape(-1, 3)
         g = g[np.hypot(g[:, 0], g[:, 1]) <= 1.0]
         return g * np.array([shape.radius, shape.radius, shape.halfLength])
+    if isinstance(shape, coal.Sphere):
+        g = np.stack(np.meshgrid(u, u, u, indexing="ij"), -1).reshape(-1, 3)
+        return g[np.linalg.norm(g, axis=1) <= 1.0] * shape.radius
     raise AssertionError(f"no filling for {type(shape).__name__}")
 
 
@@ -40,6 +43,8 @@ def _inside(shape: object, local: np.ndarray) -> np.ndarray:
         return np.all(np.abs(local) <= np.asarray(shape.halfSide), axis=1)
     if isinstance(shape, coal.Cylinder):
         return (np.hypot(local[:, 0], local[:, 1]) <= shape.radius) & (np.abs(local[:, 2]) <= shape.halfLength)
+    if isinstance(shape, coal.Sphere):
+        return np.linalg.norm(local, axis=1) <= shape.radius
     if isinstance(shape, coal.Halfspace):
         return local @ np.asarray(shape.n) <= shape.d
     raise AssertionError(f"no test for {type(shape).__name__}")
@@ -56,7 +61,7 @@ def overlapping(arm: robots.Robot, q: np.ndarray) -> set[Contact]:
     found = set()
     for pair in cm.pairs:
         a, b = index[pair.first], index[pair.second]
-        if objs[a].name == GROUND:
+        if isinstance(objs[a].geometry, coal.Halfspace):
             a, b = b, a
         pts = _fill(objs[a].geometry)
         M, N = gdata.oMg[a], gdata.oMg[b]
@@ -77,15 +82,39 @@ def test_every_catalogue_arm_has_shapes_a_floor_and_a_clear_neutral_pose(name: s
     assert cm.first_contact(arm.neutral) is None and not overlapping(arm, arm.neutral)
 
 
+def among_obstacles(arm: robots.Robot) -> robots.Robot:
+    """``arm`` with a box, a sphere and a cylinder around it, clear of its neutral pose."""
+    cm = arm.collision
+    assert cm is not None
+    p = arm.fk(arm.neutral)
+    r = max(float(np.hypot(p[0], p[1])), 0.1)
+    z = float(p[2])
+    for k in (0.8, 1.2, 1.6, 2.4):  # as near as the neutral pose leaves them clear
+        obstacles = [
+            Obstacle("crate", "box", (0.06, 0.08, 0.05), (0.0, k * r, z), (0.0, 0.0, 0.4)),
+            Obstacle("ball", "sphere", (0.04,), (0.0, -k * r, z)),
+            Obstacle("post", "cylinder", (0.02, 0.3), (-k * r, 0.0, z), (0.3, 0.0, 0.0)),
+        ]
+        arm.collision = cm.with_obstacles(obstacles)
+        if arm.collision.first_contact(arm.neutral) is None:
+            break
+    assert arm.collision.first_contact(arm.neutral) is None
+    return arm
+
+
+@pytest.mark.parametrize("among", [False, True], ids=["alone", "among obstacles"])
 @pytest.mark.parametrize("name", ARMS)
-def test_what_the_checker_says_agrees_with_filled_shapes(name: str) -> None:
+def test_what_the_checker_says_agrees_with_filled_shapes(name: str, among: bool) -> None:
     """300 random configurations: every pair whose shapes share a point (by the filling) is
-    reported, and nothing is reported where no pair is within a millimetre."""
-    arm = robots.load(name)
+    reported, and the first contact is found exactly where some pair is reported."""
+    arm = robots.load_folder(robots.CATALOGUE_DIR / name)  # (a copy of its own: obstacles are added)
+    if among:
+        arm = among_obstacles(arm)
     cm = arm.collision
     assert cm is not None
     rng = np.random.default_rng(sum(name.encode()))
     seen = 0
+    struck: set[str] = set()  # obstacles some configuration reaches
     for _ in range(300):
         q = rng.uniform(arm.limits.lower, arm.limits.upper)
         reported = set(cm.contacts(q))
@@ -93,7 +122,9 @@ def test_what_the_checker_says_agrees_with_filled_shapes(name: str) -> None:
         assert filled <= reported, (q, filled - reported)
         assert (cm.first_contact(q) is None) == (not reported)
         seen += bool(reported)
+        struck |= {name for pair in reported for name in pair} & {o.name for o in cm.obstacles}
     assert seen >= 10  # the sample holds collisions: the comparison was not empty
+    assert not among or struck  # ... with the obstacles too
 
 
 def test_neighbours_are_not_checked_and_the_base_stands_on_the_floor() -> None:
@@ -138,3 +169,26 @@ def test_a_collision_model_without_shapes_checks_nothing_but_is_clear() -> None:
     arm = robots.load("insomniac")
     bare = CollisionModel(arm.model, "<robot name='x'><link name='base'/></robot>".replace("x", "insomniac"), None)
     assert bare.pairs == [] and bare.first_contact(arm.neutral) is None
+
+
+def test_obstacles_in_robot_toml(arm_copy: Callable[..., Path]) -> None:
+    """A crate in front of insomniac: the gripper reaching into it is a contact naming it;
+    names, sizes and keys are checked when the arm loads."""
+    toml = (robots.CATALOGUE_DIR / "insomniac" / "robot.toml").read_text()
+    ground = next(line for line in toml.splitlines() if line.startswith("ground ="))
+    crate = '\n[[world.boxes]]\nname = "crate"\nsize = [0.1, 0.1, 0.1]\nposition = [0.3, 0.0, 0.05]\n'
+    arm = robots.load_folder(arm_copy("insomniac", [(ground, ground + crate)], as_name="a"))
+    cm = arm.collision
+    assert cm is not None and [o.name for o in cm.obstacles] == ["crate"]
+    assert Contact("gripper", "crate") in cm.pairs and cm.first_contact(arm.neutral) is None
+    q = solvers.solve_ik(arm, [0.3, 0.0, 0.05], approach="perpendicular").q  # the gripper in the crate
+    assert "crate" in (cm.first_contact(q) or ())
+    assert [o.name for o in cm.with_obstacles([]).obstacles] == [] and cm.obstacles  # a new model; this one stays
+    for edit, says in (
+        (crate.replace('"crate"', '"gripper"'), "is taken"),
+        (crate.replace("[0.1, 0.1, 0.1]", "[0.1, 0.0, 0.1]"), "must be positive"),
+        (crate + "colour = 1\n", "unknown key"),
+        ("\n[[world.spheres]]\nposition = [0.3, 0, 0.05]\n", "radius"),
+    ):
+        with pytest.raises(RobotFileError, match=says):
+            robots.load_folder(arm_copy("insomniac", [(ground, ground + edit)], as_name=f"b{len(says)}"))
