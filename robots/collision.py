@@ -115,6 +115,24 @@ class CollisionModel:
         self.geometry = geom
         self._local = threading.local()
 
+    def describe(self) -> dict[str, object]:
+        """A JSON-ready summary (the protocol's ``info``): the floor's height [m] (None: none),
+        the obstacles, and the pairs checked."""
+        return {
+            "ground": self.ground,
+            "obstacles": [
+                {
+                    "name": o.name,
+                    "shape": o.kind,
+                    "size": list(o.size),
+                    "position": list(o.position),
+                    "rpy": list(o.rpy),
+                }
+                for o in self.obstacles
+            ],
+            "pairs": [[p.first, p.second] for p in self.pairs],
+        }
+
     def with_obstacles(self, obstacles: Iterable[Obstacle]) -> CollisionModel:
         """The same arm and floor among ``obstacles`` instead (built anew: ~0.3 ms)."""
         return CollisionModel(self.model, self.urdf_text, self.ground, self.allowed, obstacles)

@@ -338,4 +338,5 @@ class Robot:
             "neutral": self.neutral.tolist(),
             "wrist": self.chooses_pitch,
             "tool_pitch": "level" if self.geometry and self.geometry.level else "joints",
+            "world": self.collision.describe() if self.collision is not None else None,
         }

@@ -184,6 +184,11 @@ def test_obstacles_in_robot_toml(arm_copy: Callable[..., Path]) -> None:
     q = solvers.solve_ik(arm, [0.3, 0.0, 0.05], approach="perpendicular").q  # the gripper in the crate
     assert "crate" in (cm.first_contact(q) or ())
     assert [o.name for o in cm.with_obstacles([]).obstacles] == [] and cm.obstacles  # a new model; this one stays
+    world = arm.describe()["world"]
+    assert isinstance(world, dict) and world["ground"] == 0.0 and ["gripper", "crate"] in world["pairs"]
+    assert world["obstacles"] == [
+        {"name": "crate", "shape": "box", "size": [0.1, 0.1, 0.1], "position": [0.3, 0.0, 0.05], "rpy": [0.0, 0.0, 0.0]}
+    ]
     for edit, says in (
         (crate.replace('"crate"', '"gripper"'), "is taken"),
         (crate.replace("[0.1, 0.1, 0.1]", "[0.1, 0.0, 0.1]"), "must be positive"),

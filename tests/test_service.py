@@ -37,6 +37,7 @@ def test_robots_and_info(client: ArmClient) -> None:
     info = client.info("desk4")
     assert info["coupled_limits"][0]["name"] == "linkage" and info["protocol"] == 1
     assert info["state"]["source"] in ("neutral", "commanded", "adapter")
+    assert info["world"]["ground"] == 0.0 and ["gripper", "ground"] in info["world"]["pairs"]
 
 
 def test_every_reply_names_the_service_that_gave_it(client: ArmClient, service: object) -> None:
