@@ -291,7 +291,7 @@ class _Builder:
         except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++; ElementTree ParseError
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
 
-    def _collision(self, top: _Table, model: pin.Model, urdf_name: str, neutral: FloatArray) -> CollisionModel:
+    def _collision(self, top: _Table, model: pin.Model, urdf_name: str, neutral: FloatArray) -> CollisionModel | None:
         """The URDF's collision shapes, ``[world] ground`` (the floor's height [m] in the base
         frame, default 0; ``false``: none) and ``[collision] allowed`` (pairs of link names
         never checked); a neutral pose in collision is logged."""
@@ -312,12 +312,16 @@ class _Builder:
                 if link not in links and link != GROUND:
                     raise col.error("allowed", f"{urdf_name} has no link {link!r}; links: {', '.join(sorted(links))}")
         col.finish()
-        try:
-            model_ = CollisionModel(model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles)
+        try:  # (meshes: relative to the arm's folder, as package:// paths are)
+            model_ = CollisionModel(
+                model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles, [str(self.folder)]
+            )
         except Exception as e:  # Pinocchio's and coal's own errors (a mesh it cannot read, say)
-            raise RobotFileError(
-                str(self.folder / urdf_name), None, f"its collision shapes cannot be loaded: {e}"
-            ) from None
+            # said, not refused: such arms loaded before collisions were read, and nothing checks them yet
+            log.warning(
+                "%s: %s's collision shapes cannot be loaded, none are checked: %s", self.folder.name, urdf_name, e
+            )
+            return None
         hit = model_.first_contact(neutral)
         if hit is not None:  # (said, not refused: IK and plans do not check collisions yet)
             log.warning(

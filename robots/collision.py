@@ -81,13 +81,17 @@ class CollisionModel:
         ground: float | None = 0.0,
         allowed: Iterable[tuple[str, str]] = (),
         obstacles: Iterable[Obstacle] = (),
+        package_dirs: Iterable[str] = (),
     ) -> None:
         self.model = model
+        self.package_dirs = tuple(package_dirs)
         self.urdf_text = urdf_text
         self.ground = ground
         self.allowed = tuple(allowed)
         self.obstacles = tuple(obstacles)
-        geom = pin.buildGeomFromUrdfString(model, urdf_text, pin.GeometryType.COLLISION)
+        geom = pin.buildGeomFromUrdfString(
+            model, urdf_text, pin.GeometryType.COLLISION, package_dirs=list(package_dirs)
+        )
         self.links = [model.frames[g.parentFrame].name for g in geom.geometryObjects]
         joints = [int(g.parentJoint) for g in geom.geometryObjects]
         world: list[tuple[str, pin.SE3, object]] = []
@@ -135,7 +139,7 @@ class CollisionModel:
 
     def with_obstacles(self, obstacles: Iterable[Obstacle]) -> CollisionModel:
         """The same arm and floor among ``obstacles`` instead (built anew: ~0.3 ms)."""
-        return CollisionModel(self.model, self.urdf_text, self.ground, self.allowed, obstacles)
+        return CollisionModel(self.model, self.urdf_text, self.ground, self.allowed, obstacles, self.package_dirs)
 
     def _neighbours(self, ja: int, jb: int, shaped: set[int]) -> bool:
         """Whether the links of joints ``ja`` and ``jb`` meet at one joint, links without shapes

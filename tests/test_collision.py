@@ -197,3 +197,16 @@ def test_obstacles_in_robot_toml(arm_copy: Callable[..., Path]) -> None:
     ):
         with pytest.raises(RobotFileError, match=says):
             robots.load_folder(arm_copy("insomniac", [(ground, ground + edit)], as_name=f"b{len(says)}"))
+
+
+def test_an_arm_whose_collision_mesh_cannot_be_read_still_loads(
+    arm_copy: Callable[..., Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    """Collision shapes are not checked by IK or plans yet: an unreadable mesh is said, and the
+    arm is served without them (as before collisions were read)."""
+    box = '<collision><origin xyz="0.05 0 0"/><geometry><box size="0.1 0.05 0.02"/></geometry></collision>'
+    mesh = '<collision><geometry><mesh filename="meshes/nosuch.stl"/></geometry></collision>'
+    with caplog.at_level(logging.WARNING, logger="armd.robots.catalogue"):
+        arm = robots.load_folder(arm_copy("insomniac", urdf_edits=[(box, mesh)], as_name="m"))
+    assert arm.collision is None and any("cannot be loaded" in r.getMessage() for r in caplog.records)
+    assert solvers.solve_ik(arm, arm.fk(arm.neutral)).status == "ok"
