@@ -102,6 +102,7 @@ class Service:
         self._pending: dict[str, tuple[str, _Acceptance]] = {}  # trajectory id: (robot, its acceptance)
         self._seqs: dict[tuple[str, str], int] = {}  # (robot, adapter): the last sequence number seen under that id
         self._disputed: dict[tuple[str, str], float] = {}  # (robot, adapter): when its numbers last went back
+        self._payloads: dict[tuple[str, str], bytes] = {}  # (robot, adapter): the last message seen under that id
         self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
         self._ignored: dict[str, int] = {}  # states ignored, by reason
         self._said = 0.0  # when ignored states were last logged
@@ -390,6 +391,7 @@ class Service:
             with self._lock:
                 self._seqs.pop((robot, ident), None)
                 self._disputed.pop((robot, ident), None)
+                self._payloads.pop((robot, ident), None)
         elif early is not None:  # its state came before its token: trusted now, if still fresh
             self._on_state(early)
         log.info("adapter %s of %s %s", ident, robot, "up" if sample.kind == zenoh.SampleKind.PUT else "gone")
@@ -403,11 +405,13 @@ class Service:
         The id is no secret (every report carries it): a forger may publish under it. One
         publisher's numbers only rise (Zenoh delivers a publisher's puts in order), so a number
         not above the last one seen under the id, whatever else that report said, means a
-        second publisher or a replay: the id is disputed, and none of its reports is believed
-        until its numbers have risen for ``DISPUTE_HOLD`` seconds (the last report believed
-        before goes stale, and moves plan from what was commanded, which the adapter checks
-        against where the arm is). A forger who numbers high therefore silences the id for a
-        while; it never steers the planner, nor locks the adapter out."""
+        second publisher or a replay (the very same message twice is a double delivery, and
+        dropped): the id is disputed, what it said before is forgotten (it may have been the
+        forger's), and none of its reports is believed until its numbers have risen for
+        ``DISPUTE_HOLD`` seconds; meanwhile moves plan from what was commanded, which the
+        adapter checks against where the arm is. A forged report numbered ahead may be
+        believed until the adapter's next one (20 ms at 50 Hz), within the continuity slack;
+        then it is forgotten. It never locks the adapter out."""
         robot = str(sample.key_expr).split("/")[-2]
         arm = self.arms.get(robot)
         if arm is None:
@@ -431,16 +435,29 @@ class Service:
                 known = True
                 key = (robot, adapter)
                 last_seq = self._seqs.get(key)
+                payload = sample.payload.to_bytes()
+                if last_seq == seq and self._payloads.get(key) == payload:
+                    return  # the same message delivered twice (Zenoh may, over two routes): nobody else's
                 self._seqs[key] = seq
+                self._payloads[key] = payload
                 now = time.monotonic()
-                if last_seq is not None and seq <= last_seq:
+                began = last_seq is not None and seq <= last_seq
+                if began:
                     self._disputed[key] = now
                 disputed = now - self._disputed.get(key, -math.inf) < DISPUTE_HOLD
         if not known:
             self._ignore(robot, "no live adapter of that id")
             return
         if disputed:
-            self._ignore(robot, f"numbered out of order under adapter {adapter} (a second publisher or a replay)")
+            if began:  # what it said before may have been the forger's: forgotten
+                self.book.forget(robot, adapter)
+                log.warning(
+                    "adapter %s of %s: two publishers under its id, or a replay: not believed for %g s",
+                    adapter,
+                    robot,
+                    DISPUTE_HOLD,
+                )
+            self._ignore(robot, "numbered out of order under a live adapter's id (a second publisher or a replay)")
             return
         why = implausible(arm, state)
         if why is not None:

@@ -283,3 +283,26 @@ def test_a_move_planned_from_a_late_report_is_planned_again_from_the_adapters_wo
     finally:
         sub.undeclare()  # type: ignore[attr-defined]
         adapter.close()
+
+
+def test_the_same_message_twice_is_a_double_delivery_not_a_dispute(
+    client: ArmClient, service: object, forger: zenoh.Session
+) -> None:
+    """Zenoh may deliver one put twice (two routes): the very same message again is dropped;
+    another message under the same number disputes the id."""
+    arm = robots.load(ARM)
+    token = forger.liveliness().declare_token(f"armd/{ARM}/adapter/twice0000001")
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the token")  # type: ignore[attr-defined]
+        here = (np.array(arm.neutral) + 0.05).tolist()
+        first = _state(here, "twice0000001", 1)
+        for _ in range(2):
+            forger.put(f"armd/{ARM}/state", first)
+        time.sleep(0.2)
+        forger.put(f"armd/{ARM}/state", _state(here, "twice0000001", 2))
+        wait_for(lambda: service.book.last(ARM, "twice0000001") is not None, what="believed")  # type: ignore[attr-defined]
+        assert client.state(ARM)["source"] == "adapter"
+        forger.put(f"armd/{ARM}/state", _state((np.array(here) + 0.01).tolist(), "twice0000001", 2))
+        wait_for(lambda: service.book.last(ARM, "twice0000001") is None, what="the dispute")  # type: ignore[attr-defined]
+    finally:
+        token.undeclare()
