@@ -146,6 +146,7 @@ def _grid(line: LinePath) -> tuple[FloatArray, FloatArray]:
     """IK on the grid: all at once from the start's configuration (the branch nearest it), and
     where that is not continuous, point by point, each seeded by the last."""
     n = max(2, math.ceil(line.length / GRID_STEP) + 1)
+    n = max(n, math.ceil(abs(line.roll1 - line.roll0) / (0.5 * MAX_JUMP)) + 1)  # an asked roll: small turns too
     ss = np.linspace(0.0, line.length, n)
     qs = line.ik_many(ss, np.broadcast_to(line.q0, (n, line.robot.nq)))
     qs[0] = line.q0

@@ -187,3 +187,14 @@ def test_a_line_that_does_not_move_cannot_turn_the_roll() -> None:
         planning.plan(
             arm, start, {"target": arm.fk(start).tolist(), "roll": wrap(arm.tool_roll(start) + 0.5)}, path="line"
         )
+
+
+def test_a_short_line_may_turn_the_roll_far() -> None:
+    """The grid along the line is as fine as the roll's turn needs: 2.5 rad over 5 cm (once
+    refused as a branch flip of the roll joint)."""
+    arm = robots.load("so101")
+    start = np.array(arm.neutral)
+    p1 = arm.fk(start) + np.array([0.0, 0.0, 0.05])
+    want = wrap(arm.tool_roll(start) + 2.5)
+    traj = planning.plan(arm, start, {"target": p1.tolist(), "roll": want}, path="line")
+    assert arm.tool_roll(np.asarray(traj.position[-1])) == pytest.approx(want, abs=1e-6)
