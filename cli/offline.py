@@ -10,8 +10,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-from armd import robots
-
 from .common import all_robots, goal, motion_args, numbers, robot_named
 
 
@@ -87,7 +85,7 @@ def cmd_secure_setup(args: argparse.Namespace) -> int:
     from armd.errors import UnknownRobot
     from armd.service import secure_setup
 
-    known = list(robots.names()) + (list(robots.load_dir(args.robots_dir)) if args.robots_dir else [])
+    known = list(all_robots(args.robots_dir))  # (a folder's arm of a catalogue name replaces it)
     names = args.robot or known
     unknown = [n for n in names if n not in known]
     if unknown:

@@ -12,6 +12,8 @@ serves with fresh passwords; ``docs/security/`` holds them for the catalogue wit
 from __future__ import annotations
 
 import json
+import os
+import re
 import secrets
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -54,7 +56,7 @@ def _keys(prefix: str, robot: str, names: Sequence[str]) -> list[str]:
 
 def _check(robots: Sequence[str], prefix: str) -> None:
     for name in (*robots, *prefix.split("/")):
-        if not name or any(c in name for c in '/*$?#"\\ ') or name.startswith("@"):
+        if not re.fullmatch(r"[A-Za-z0-9_.-]+", name):
             raise BadRequest(f"{name!r} cannot be part of a key expression in an ACL rule", field="robots")
     if len(set(robots)) != len(robots):
         raise BadRequest("an arm is named twice", field="robots")
@@ -252,14 +254,17 @@ def write(directory: Path, contents: Mapping[str, str]) -> list[Path]:
     """Write the files into ``directory`` (made if missing); ``users.txt`` and the clients'
     files, which hold passwords, readable by their owner only. Refuses to overwrite."""
     directory.mkdir(parents=True, exist_ok=True)
-    clash = [n for n in contents if (directory / n).exists()]
+    clash = [n for n in contents if (directory / n).exists() or (directory / n).is_symlink()]
     if clash:
         raise BadRequest(f"{directory} already holds {', '.join(sorted(clash))}: choose an empty folder", field="dir")
     written = []
     for name, text in contents.items():
         path = directory / name
-        path.write_text(text)
-        if name != "router.json5":
-            path.chmod(0o600)
+        # created here, never through a link planted in its place, and private from the start
+        fd = os.open(
+            path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644 if name == "router.json5" else 0o600
+        )
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
         written.append(path)
     return written

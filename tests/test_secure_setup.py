@@ -56,7 +56,7 @@ def test_each_arm_has_its_own_adapter_user_whose_rules_name_only_its_arm() -> No
 
 
 def test_bad_names_and_passwords_are_refused(tmp_path: Path) -> None:
-    for bad in (["arm/x"], ["*"], [""], ["a", "a"], ['a"b']):
+    for bad in (["arm/x"], ["*"], [""], ["a", "a"], ['a"b'], ["a\nb"], ["a:b"], ["a\tb"]):
         with pytest.raises(BadRequest):
             secure_setup.router_config(bad, "users.txt")
     pw = secure_setup.new_passwords(["a"])
@@ -69,6 +69,10 @@ def test_bad_names_and_passwords_are_refused(tmp_path: Path) -> None:
     with pytest.raises(BadRequest, match=r"already holds users\.txt"):
         secure_setup.write(out, {"users.txt": "y"})
     assert (out / "users.txt").read_text() == "x"
+    (out / "operator.json5").symlink_to(tmp_path / "elsewhere.txt")  # a dangling link in the folder
+    with pytest.raises(BadRequest, match=r"already holds operator\.json5"):
+        secure_setup.write(out, {"operator.json5": "secret"})
+    assert not (tmp_path / "elsewhere.txt").exists()
 
 
 @pytest.mark.slow  # (three processes of the command)
