@@ -128,22 +128,36 @@ def has_mimic_joints(robot: Any) -> bool:
     return any(j.find("mimic") is not None for j in root.iter("joint"))
 
 
-def random_configs(robot: Any, m: int, rng: np.random.Generator) -> FloatArray:
-    """``m`` uniformly random joint vectors inside every limit (box and coupled), by rejection."""
+def random_configs(robot: Any, m: int, rng: np.random.Generator, *, clear: bool = False) -> FloatArray:
+    """``m`` uniformly random joint vectors inside every limit (box and coupled), by rejection;
+    ``clear``: only those clear of collisions too (:func:`is_clear`)."""
     lo, hi = robot.limits.lower, robot.limits.upper
     out: list[FloatArray] = []
     while len(out) < m:
         q = rng.uniform(lo, hi, size=(max(64, 2 * (m - len(out))), len(lo)))
-        out.extend(q[robot.limits.contains_batch(q)])
+        q = q[robot.limits.contains_batch(q)]
+        out.extend(r for r in q if not clear or is_clear(robot, r))
     return np.array(out[:m])
 
 
-def configs_at_limits(robot: Any, m: int, rng: np.random.Generator) -> FloatArray:
+def is_clear(robot: Any, q: FloatArray) -> bool:
+    """``q`` touches nothing in the arm's world (itself, its floor, its obstacles) and keeps the
+    tool point above the floor: a configuration whose tool point armd's IK must answer ``ok``
+    (the peers know no collisions: the targets they are measured on come from such ones)."""
+    world = robot.collision
+    if world is None:
+        return True
+    if world.ground is not None and float(robot.fk(q)[2]) < world.ground:
+        return False
+    return world.first_contact(q) is None
+
+
+def configs_at_limits(robot: Any, m: int, rng: np.random.Generator, *, clear: bool = False) -> FloatArray:
     """``m`` in-limit joint vectors with joints pinned on their limits: where solvers tend to fail.
 
     Each joint sits on its lower or upper bound with probability 1/2; each coupled limit is
     made active (one of its joints moved so the sum sits on the bound) with probability 1/2.
-    Vectors that leave another limit are drawn again.
+    Vectors that leave another limit (or, with ``clear``, collide) are drawn again.
     """
     lo, hi = robot.limits.lower, robot.limits.upper
     out: list[FloatArray] = []
@@ -161,7 +175,8 @@ def configs_at_limits(robot: Any, m: int, rng: np.random.Generator) -> FloatArra
                     continue
                 j = int(rng.choice(nz))
                 q[r, j] += (bound - float(c.coefficients @ q[r])) / c.coefficients[j]
-        out.extend(q[robot.limits.contains_batch(q)])
+        q = q[robot.limits.contains_batch(q)]
+        out.extend(r for r in q if not clear or is_clear(robot, r))
     return np.array(out[:m])
 
 
@@ -480,6 +495,7 @@ __all__ = [
     "fk_agreement",
     "geometry_chain",
     "has_mimic_joints",
+    "is_clear",
     "random_configs",
     "reach_bound",
     "rtb_tolerance",

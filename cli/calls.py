@@ -61,6 +61,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
             ("roll [rad]", "" if r.roll is None else r.roll),
             ("branch", r.branch),
             ("other branches", len(r.branches)),
+            ("in contact", "" if r.contact is None else f"{r.contact[0]} and {r.contact[1]}"),
             ("reason", r.reason or ""),
         ],
     )

@@ -50,6 +50,13 @@ class IKReply:
         value = self.raw.get("roll")
         return None if value is None else float(value)
 
+    @property
+    def contact(self) -> tuple[str, str] | None:
+        """The colliding pair when the status is ``"collision"`` (link names, ``"ground"`` or an
+        obstacle's name); else None."""
+        pair = self.raw.get("contact")
+        return None if pair is None else (str(pair[0]), str(pair[1]))
+
 
 @dataclass(frozen=True)
 class FKReply:

@@ -9,11 +9,12 @@
 
 from .batch import BatchIKResult, reachable, solve_ik_batch
 from .ik import DEFAULT_TOLERANCE, solve_ik
-from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
+from .result import APPROXIMATE, COLLISION, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, SensorReading, approach_pitch, target_point
 
 __all__ = [
     "APPROXIMATE",
+    "COLLISION",
     "DEFAULT_TOLERANCE",
     "OK",
     "PARALLEL",

@@ -16,6 +16,7 @@ import numpy as np
 import pinocchio as pin
 
 from armd.robots import Robot
+from armd.robots.angles import wrap
 from armd.robots.geometry import Geometry
 from armd.robots.types import FloatArray
 
@@ -23,6 +24,7 @@ from .arrays import Arm, Family
 from .atlas import Atlas, make_atlas
 from .geometric import arm_pose
 from .kinematics import Chain
+from .kinematics import pose as chain_pose
 
 ATLAS_SIZE = 4096
 
@@ -56,6 +58,15 @@ class ArmState:
     @property
     def family(self) -> Family | None:
         return None if self.arrays is None else self.arrays.family
+
+    def tool_pose(self, q: FloatArray) -> tuple[FloatArray, float]:
+        """Tool point [m] and pitch [rad] at ``q`` on the exact model: the family's formula where
+        it is the URDF's FK (checked against Pinocchio when the arm was first seen), else the
+        URDF's chain (compiled)."""
+        reached = np.empty(3)
+        if self.arrays is None or not self.exact:
+            return reached, wrap(chain_pose(self.chain, q, reached))
+        return reached, wrap(arm_pose(self.arrays, q, reached))
 
 
 _lock = threading.Lock()

@@ -1,6 +1,8 @@
 """``solve_ik_batch``: many targets in one call, the closed-form stage compiled and looped.
 
-The statuses mean what they mean for :func:`solvers.solve_ik`. For an arm whose
+The statuses mean what they mean for :func:`solvers.solve_ik` (collisions included: an
+answer of the compiled loop that collides, or a target under the floor, takes the
+single-target path, which chooses a clear branch or says ``collision``). For an arm whose
 ``[geometry]`` reproduces its URDF exactly (checked against Pinocchio when the solver first
 sees the arm; every catalogue arm), the answers are checked by the family's FK formula in
 the compiled loop; otherwise each answer is checked by Pinocchio FK and refined by the QP.
@@ -26,7 +28,7 @@ from armd.robots.types import FloatArray
 from .analytic import EXACT, NONE, solve_many
 from .arm import ArmState, arm_state
 from .geometric import BRANCH_NAMES
-from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _closest, _solve_numerical, solve_ik
+from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _closest, solve_ik
 from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
 from .target import approach_pitch
 
@@ -36,12 +38,13 @@ class BatchIKResult:
     """Answers for m targets, as arrays (row i answers target i).
 
     Attributes:
-        status: (m,) ``"ok"``, ``"approximate"`` or ``"unreachable"``.
+        status: (m,) ``"ok"``, ``"approximate"``, ``"unreachable"`` or ``"collision"``.
         q: (m, n) joint vectors [rad], all within limits.
         position_error: (m,) [m].
         reached: (m, 3) tool points [m] at ``q``.
         pitch: (m,) tool pitch [rad] at ``q``.
         branch: (m,) branch names (``"numerical"`` where the QP answered).
+        contact: (m,) the colliding pair where the status is ``"collision"``, else None.
     """
 
     status: NDArray[np.str_]
@@ -50,6 +53,7 @@ class BatchIKResult:
     reached: FloatArray
     pitch: FloatArray
     branch: NDArray[np.str_]
+    contact: list[tuple[str, str] | None]
 
     def __len__(self) -> int:
         return len(self.status)
@@ -62,6 +66,7 @@ class BatchIKResult:
             "reached": self.reached.tolist(),
             "pitch": self.pitch.tolist(),
             "branch": self.branch.tolist(),
+            "contact": [None if c is None else list(c) for c in self.contact],
         }
 
 
@@ -174,15 +179,24 @@ def solve_ik_batch(
     err = np.empty(m)
     reached = np.empty((m, 3))
     pitch_out = np.empty(m)
+    contact: list[tuple[str, str] | None] = [None] * m
     if arm.arrays is None:
         for i in range(m):
             if check is not None:
                 check()
             p_i = float(pitches[i]) if per_target else pitch
             _store(
-                i, _solve_numerical(arm, pts[i], p_i, refs[i], tolerance), status, branch, q, err, reached, pitch_out
+                i,
+                solve_ik(robot, pts[i], approach=p_i, seed=refs[i], tolerance=tolerance),
+                status,
+                branch,
+                q,
+                err,
+                reached,
+                pitch_out,
+                contact,
             )
-        return BatchIKResult(status, q, err, reached, pitch_out, branch)
+        return BatchIKResult(status, q, err, reached, pitch_out, branch, contact)
 
     if per_target:
         prefs = np.ascontiguousarray(pitches.reshape(m, 1))
@@ -194,6 +208,13 @@ def solve_ik_batch(
     _solve_many(arm, refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
     solved = codes != NONE
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
+    world = robot.collision
+    if world is not None:  # a colliding answer, or a target under the floor: the single-target path
+        if world.ground is not None:
+            good &= pts[:, 2] >= world.ground
+        for i in np.flatnonzero(good).tolist():
+            if world.first_contact(q[i]) is not None:
+                good[i] = False
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
     branch[good] = np.array(BRANCH_NAMES)[ids[good]]
     pitch_out[good] = wrap_array(pitch_out[good])  # (the compiled stage's tool pitch, unwrapped)
@@ -204,11 +225,11 @@ def solve_ik_batch(
         p_i = float(pitches[i]) if per_target else pitch
         r = (
             solve_ik(robot, pts[i], approach=a_i, seed=refs[i], tolerance=tolerance)
-            if solved[i] or arm.rolls_tool  # (out of reach at the seed's roll: solve_ik turns it)
+            if solved[i] or arm.rolls_tool or world is not None  # (solve_ik turns the roll, checks collisions)
             else _closest(arm, pts[i], p_i, refs[i], tolerance, 0)
         )
-        _store(int(i), r, status, branch, q, err, reached, pitch_out)
-    return BatchIKResult(status, q, err, reached, pitch_out, branch)
+        _store(int(i), r, status, branch, q, err, reached, pitch_out, contact)
+    return BatchIKResult(status, q, err, reached, pitch_out, branch, contact)
 
 
 def _store(
@@ -220,7 +241,9 @@ def _store(
     err: FloatArray,
     reached: FloatArray,
     pitch: FloatArray,
+    contact: list[tuple[str, str] | None],
 ) -> None:
+    contact[i] = r.contact
     status[i], branch[i], q[i], err[i], reached[i], pitch[i] = (
         r.status,
         r.branch,
@@ -235,7 +258,8 @@ def reachable(
     robot: Robot, targets: object, *, approach: object = None, tolerance: float = DEFAULT_TOLERANCE
 ) -> NDArray[np.bool_]:
     """Which targets :func:`solve_ik_batch` answers ``ok`` (with ``approach``), for maps of the
-    workspace: the same closed-form stage, without the closest-point search that an
+    workspace (clear of collisions, above the floor): the same closed-form stage, without the
+    closest-point search that an
     unreachable target's answer needs (so a mostly unreachable grid costs what a reachable
     one does). Arms outside the exact closed form take :func:`solve_ik_batch` itself.
     """
@@ -256,4 +280,11 @@ def reachable(
     good: NDArray[np.bool_] = (codes != NONE) & (err <= tolerance)
     if pitch is not None:
         good &= codes == EXACT
+    world = robot.collision
+    if world is not None:  # clear of the arm itself, the floor and the obstacles (else solve_ik's word)
+        if world.ground is not None:
+            good &= pts[:, 2] >= world.ground
+        for i in np.flatnonzero(good).tolist():
+            if world.first_contact(q[i]) is not None:
+                good[i] = solve_ik(robot, pts[i], approach=approach, tolerance=tolerance).status == OK
     return good

@@ -29,7 +29,7 @@ the numerical IK (:func:`solvers.lm.solve_chain`) from the seed, then from the a
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -40,11 +40,11 @@ from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_point
 from .arm import ArmState, arm_state
+from .clearance import clear, clear_starts, pitches
 from .closest import closest_family
-from .geometric import BRANCH_NAMES, arm_pose
-from .kinematics import pose as chain_pose
+from .geometric import BRANCH_NAMES
 from .lm import refine_branches, refine_chain, solve_chain
-from .result import APPROXIMATE, OK, UNREACHABLE, Branch, IKResult
+from .result import APPROXIMATE, COLLISION, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
@@ -108,8 +108,15 @@ def solve_ik(
         result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
         result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
+    world = robot.collision
+    if world is not None:
+        result = clear(arm, result, lambda: _alternatives(arm, point, pitch, ref, tolerance))
     if quantise:
         result = _quantise(arm, result, tolerance)
+        hit = None if world is None or result.status == COLLISION else world.first_contact(result.q)
+        if hit is not None:
+            reason = f"quantised to whole actuator steps, the answer collides: {hit}"
+            result = result._replace(status=COLLISION, contact=(hit.first, hit.second), reason=reason)
     if robot.roll_joint is not None:
         result = result._replace(roll=robot.tool_roll(result.q))
     return result
@@ -121,17 +128,6 @@ def solve_ik(
 def _dist(a: FloatArray, b: FloatArray) -> float:
     """Euclidean distance [m] of two 3-vectors (math.dist: no NumPy call overhead)."""
     return math.dist(a.tolist(), b.tolist())
-
-
-def _pose(arm: ArmState, q: FloatArray) -> tuple[FloatArray, float]:
-    """Tool point [m] and pitch [rad] at ``q`` on the exact model: the family's formula where
-    it is the URDF's FK (checked against Pinocchio when the arm was first seen), else the URDF's
-    chain (solvers.kinematics)."""
-    reached = np.empty(3)
-    if arm.arrays is None or not arm.exact:
-        return reached, wrap(chain_pose(arm.chain, q, reached))  # (the exact chain, compiled)
-    pitch = arm_pose(arm.arrays, q, reached)
-    return reached, wrap(pitch)
 
 
 def _result(
@@ -147,7 +143,7 @@ def _result(
 ) -> IKResult:
     """The answer, with the tool point and pitch at ``chosen.q`` by FK on the exact model (the
     check; ``pose`` where the caller has it already)."""
-    reached, pitch = _pose(arm, chosen.q) if pose is None else pose
+    reached, pitch = arm.tool_pose(chosen.q) if pose is None else pose
     pitch_error = None if asked_pitch is None else wrap(pitch - asked_pitch)
     return IKResult(
         status=status,
@@ -406,6 +402,36 @@ def _closest_result(
         f"{chosen.position_error:.6g} m away"
     )
     return _result(arm, UNREACHABLE, chosen, [], point, pitch, iterations, reason, pose)
+
+
+def _alternatives(
+    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
+) -> Iterator[Branch]:
+    """Configurations on ``point`` other than the first answer's branches, preferred first, for
+    when they all collide (:func:`solvers.clearance.clear`): with a free pitch, the closed form's
+    branches at the other pitches, nearest the preferred one first; then the numerical IK from
+    the clear atlas configurations nearest the target (other wrist rolls; an arm outside the
+    family)."""
+    world = arm.robot.collision
+    assert world is not None
+    if arm.arrays is not None and pitch is None and arm.robot.chooses_pitch:
+        b = arm.buffers
+        for p in pitches(float(FREE_PITCHES[0])):
+            code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
+            if code != EXACT:
+                continue
+            names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
+            rows = [(names[r], b.qs[r].copy(), float(b.errs[r])) for r in range(m)]
+            if arm.exact:
+                yield from (Branch(n, q, e) for n, q, e in rows if e <= tolerance)
+            else:
+                yield from _refined(arm, rows, point, p, tolerance)[0]
+    w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
+    for start in clear_starts(arm, world, point, _NUMERICAL_STARTS):
+        q = np.empty(arm.robot.nq)
+        err, perr, _, _ = _chain_solve(arm, point, 0.0 if pitch is None else pitch, w2, start, start, 0, tolerance, q)
+        if err <= tolerance and (pitch is None or perr <= PITCH_TOLERANCE):
+            yield Branch("numerical", q, err)
 
 
 # -- arms outside the family -------------------------------------------------------------

@@ -12,6 +12,7 @@ from armd.robots.types import FloatArray
 OK = "ok"
 APPROXIMATE = "approximate"
 UNREACHABLE = "unreachable"
+COLLISION = "collision"
 
 
 class Branch(NamedTuple):
@@ -31,9 +32,14 @@ class IKResult(NamedTuple):
     Attributes:
         status: ``"ok"`` (on the target within tolerance, with the asked pitch),
             ``"approximate"`` (on the target, but the asked pitch or an exact position was
-            not possible: see ``reason``), ``"unreachable"`` (the closest configuration
-            within limits; ``position_error`` says how far it stays).
-        q: the joint vector [rad], always within every joint limit.
+            not possible: see ``reason``), ``"unreachable"`` (the closest collision-free
+            configuration found within limits; ``position_error`` says how far it stays),
+            ``"collision"`` (every configuration that reaches the target collides with the arm
+            itself, the ground or an obstacle, or the target is below the ground: ``contact``
+            names the pair, ``q`` is the nearest such configuration; or no collision-free
+            configuration was found near an unreachable target).
+        q: the joint vector [rad], always within every joint limit; collision-free unless the
+            status is ``"collision"``.
         position_error: distance [m] from the tool point at ``q`` to the target.
         reached: the tool point [m] at ``q``, in ``base``.
         target: the target point [m], in ``base``.
@@ -41,11 +47,14 @@ class IKResult(NamedTuple):
         pitch_error: reached minus asked pitch [rad], wrapped; None when the pitch was free.
         branch: the name of the chosen branch (``front``/``flipped`` yaw, elbow ``up``/``down``),
             or ``"numerical"`` when the QP produced it.
-        branches: every other valid branch, nearest to the seed first.
+        branches: every other valid branch, nearest to the seed first (collision-free ones
+            only, unless the status is ``"collision"``).
         iterations: QP refinement iterations used (0: the closed form was exact).
         reason: why the status is not ``ok``; None when it is.
         roll: the tool's roll [rad] about its axis at ``q`` (:meth:`Robot.tool_roll`); None for
             an arm without a wrist roll.
+        contact: the pair in collision (link names, ``"ground"`` or an obstacle's name) when
+            the status is ``"collision"``; else None.
     """
 
     status: str
@@ -60,6 +69,7 @@ class IKResult(NamedTuple):
     iterations: int = 0
     reason: str | None = None
     roll: float | None = None
+    contact: tuple[str, str] | None = None
 
     @property
     def ok(self) -> bool:
@@ -80,4 +90,5 @@ class IKResult(NamedTuple):
             "iterations": self.iterations,
             "reason": self.reason,
             "roll": self.roll,
+            "contact": None if self.contact is None else list(self.contact),
         }

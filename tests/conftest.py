@@ -97,6 +97,39 @@ def adapter_session(router: str) -> Iterator[zenoh.Session]:
     session.close()
 
 
+_PLAIN: dict[str, robots.Robot] = {}
+
+
+def plain(name: str) -> robots.Robot:
+    """Catalogue arm ``name`` without its world (no collision checks: the floor, its own links):
+    for the tests of IK and planning arithmetic, which hold for every configuration within the
+    limits. What the world changes is tested with the world (tests/test_collision.py)."""
+    arm = _PLAIN.get(name)
+    if arm is None:
+        arm = robots.load_folder(robots.CATALOGUE_DIR / name)
+        arm.collision = None
+        _PLAIN[name] = arm
+    return arm
+
+
+def clear_configs(arm: robots.Robot, rng: object, n: int) -> list[object]:
+    """``n`` random configurations of ``arm`` within every limit and clear of collisions (with
+    itself, its floor and its obstacles), the tool point above the floor: truths whose tool points
+    IK must reach ``ok`` (a colliding one's answer is ``collision``: tests/test_collision.py)."""
+    out: list[object] = []
+    world = arm.collision
+    while len(out) < n:
+        q = rng.uniform(arm.limits.lower, arm.limits.upper)  # type: ignore[attr-defined]
+        if not arm.limits.contains(q):
+            continue
+        if world is not None and (
+            world.first_contact(q) is not None or (world.ground is not None and arm.fk(q)[2] < world.ground)
+        ):
+            continue
+        out.append(q)
+    return out
+
+
 def wait_for(predicate: object, timeout: float = 10.0, what: str = "") -> None:
     deadline = time.monotonic() + timeout
     while not predicate():  # type: ignore[operator]

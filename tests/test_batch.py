@@ -6,8 +6,8 @@ import math
 
 import numpy as np
 import pytest
+from conftest import plain
 
-from armd import robots
 from armd.errors import BadRequest
 from armd.solvers import solve_ik, solve_ik_batch
 from tests.test_fk import random_in_limits
@@ -16,7 +16,7 @@ from tests.test_fk import random_in_limits
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
 @pytest.mark.parametrize("approach", [None, "parallel"])
 def test_batch_equals_single(name: str, approach: str | None) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     if approach and not (arm.geometry and (arm.geometry.has_wrist or arm.geometry.level)):
         pytest.skip("no approach on an arm without a wrist")
     rng = np.random.default_rng(30)
@@ -40,7 +40,7 @@ def test_batch_equals_single(name: str, approach: str | None) -> None:
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut"])
 def test_batch_with_a_pitch_per_target(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     rng = np.random.default_rng(33)
     qs = random_in_limits(arm, 300, seed=34)
     targets = np.array([arm.fk(q) for q in qs])
@@ -58,7 +58,7 @@ def test_batch_with_a_pitch_per_target(name: str) -> None:
 
 
 def test_batch_with_seeds() -> None:
-    arm = robots.load("gupta3")
+    arm = plain("gupta3")
     qs = random_in_limits(arm, 200, seed=32)
     targets = np.array([arm.fk(q) for q in qs])
     r = solve_ik_batch(arm, targets, seeds=qs)
@@ -82,4 +82,4 @@ def test_batch_with_seeds() -> None:
 )
 def test_batch_bad_input(targets: object, kwargs: dict[str, object]) -> None:
     with pytest.raises(BadRequest):
-        solve_ik_batch(robots.load("gupta3"), targets, **kwargs)  # type: ignore[arg-type]
+        solve_ik_batch(plain("gupta3"), targets, **kwargs)  # type: ignore[arg-type]

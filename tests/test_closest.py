@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import plain
 
 from armd import robots
 from armd.solvers import solve_ik
@@ -22,7 +23,7 @@ from armd.solvers.closest import closest_box, closest_family, refine_family
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
-ARM = robots.load("desk4")
+ARM = plain("desk4")
 N_TARGETS = 2000
 KINDS = ("beyond reach", "near the yaw axis", "above or below", "behind the base", "anywhere")
 
@@ -273,12 +274,12 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
         arrays = a.arrays._replace(family=_family(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi))
         _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.atlas, 3, q)
         assert its > 0
-    wrist = _arm(robots.load("insomniac")).family
+    wrist = _arm(plain("insomniac")).family
     assert wrist is not None
     P = wrist.P.copy()
     P[1] = 0.01
     q = np.empty(len(wrist.lower))
-    assert closest_box(wrist._replace(P=P), t, robots.load("insomniac").neutral, q, True) == -1.0
+    assert closest_box(wrist._replace(P=P), t, plain("insomniac").neutral, q, True) == -1.0
 
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3"])
@@ -288,7 +289,7 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
     targets of every kind, the pruned search's error is the full search's (visiting every
     candidate), its answer within limits and where it says. A bound that is not one (a slack of
     the wrong sign, a reach too short) makes it answer worse somewhere here."""
-    arm = robots.load(name)
+    arm = plain(name)
     a = _arm(arm)
     fp = a.family
     assert fp is not None

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import plain
 
 from armd import robots, solvers
 from armd.errors import BadRequest
@@ -27,7 +28,7 @@ def assert_valid(arm: robots.Robot, q: np.ndarray, target: np.ndarray, tol: floa
 
 @pytest.mark.parametrize("name", ARMS)
 def test_reachable_targets_are_solved_exactly(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     for q in random_in_limits(arm, N, seed=11):
         target = arm.fk(q)
         r = solve_ik(arm, target)
@@ -41,7 +42,7 @@ def test_reachable_targets_are_solved_exactly(name: str) -> None:
 
 @pytest.mark.parametrize("name", ARMS)
 def test_random_seeds(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     seeds = random_in_limits(arm, 300, seed=12)
     for q, seed in zip(random_in_limits(arm, 300, seed=13), seeds, strict=True):
         r = solve_ik(arm, arm.fk(q), seed=seed)
@@ -63,7 +64,7 @@ def pitched_configs(arm: robots.Robot, pitch: float, n: int, seed: int) -> np.nd
     ("approach", "pitch"), [("parallel", 0.0), ("perpendicular", -math.pi / 2), (0.4, 0.4), (-1.0, -1.0)]
 )
 def test_approach_modes(name: str, approach: object, pitch: float) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     qs = pitched_configs(arm, pitch, 300, seed=14)
     assert len(qs) > 50
     for q in qs:
@@ -80,7 +81,7 @@ def test_approach_modes(name: str, approach: object, pitch: float) -> None:
 
 @pytest.mark.parametrize("name", WRIST_ARMS)
 def test_free_pitch_prefers_parallel_then_perpendicular(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     for q in pitched_configs(arm, 0.0, 100, seed=15):
         r = solve_ik(arm, arm.fk(q))
         assert abs(r.pitch) <= 1e-9  # level whenever level is reachable
@@ -96,7 +97,7 @@ def test_free_pitch_prefers_parallel_then_perpendicular(name: str) -> None:
 @pytest.mark.parametrize("name", WRIST_ARMS)
 def test_free_pitch_otherwise_nearest_reachable(name: str) -> None:
     """When neither level nor down is reachable, no reachable pitch is nearer to them than armd's."""
-    arm = robots.load(name)
+    arm = plain(name)
     grid = np.linspace(-math.pi, math.pi, 721)
     checked = 0
     for q in random_in_limits(arm, 400, seed=17):
@@ -117,7 +118,7 @@ def test_free_pitch_otherwise_nearest_reachable(name: str) -> None:
 
 @pytest.mark.parametrize("name", WRIST_ARMS)
 def test_unreachable_pitch_is_approximate(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     seen = 0
     for q in random_in_limits(arm, 300, seed=18):
         target = arm.fk(q)
@@ -134,7 +135,7 @@ def test_unreachable_pitch_is_approximate(name: str) -> None:
 
 @pytest.mark.parametrize("name", ARMS)
 def test_unreachable_targets_get_the_closest_point(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     rng = np.random.default_rng(19)
     samples = random_in_limits(arm, 20000, seed=20)
     points = np.array([arm.fk(q) for q in samples])
@@ -160,7 +161,7 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
     from armd.solvers.arm import arm_state
     from armd.solvers.closest import closest_box, refine_family
 
-    arm = robots.load(name)
+    arm = plain(name)
     a = arm_state(arm)
     fp = a.family
     assert fp is not None
@@ -189,7 +190,7 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
 
 
 def test_seed_picks_the_nearest_branch_deterministically() -> None:
-    arm = robots.load("gupta3")
+    arm = plain("gupta3")
     for q in random_in_limits(arm, 300, seed=21):
         target = arm.fk(q)
         r = solve_ik(arm, target, seed=q)
@@ -206,7 +207,7 @@ def test_seed_picks_the_nearest_branch_deterministically() -> None:
 def test_elbow_names_match_the_geometry() -> None:
     """elbow_up: the elbow lies above the line from the shoulder to the wrist."""
     for name in ARMS:
-        arm = robots.load(name)
+        arm = plain(name)
         g = arm.geometry
         assert g is not None
         for q in random_in_limits(arm, 200, seed=22):
@@ -225,7 +226,7 @@ def test_elbow_names_match_the_geometry() -> None:
 
 
 def test_sensor_reading_target_matches_seed_000() -> None:
-    arm = robots.load("insomniac")
+    arm = plain("insomniac")
     reading = SensorReading("et_left", 0.25, -0.3)
     r = solve_ik(arm, reading, approach="parallel")
     expected = np.array([0.12 + 0.25 * math.cos(-0.3), 0.10 + 0.25 * math.sin(-0.3), 0.10])
@@ -259,7 +260,7 @@ BAD = [
 
 @pytest.mark.parametrize(("name", "kwargs", "field"), BAD)
 def test_bad_input_raises_the_typed_error(name: str, kwargs: dict[str, object], field: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     target = kwargs.pop("target")
     with pytest.raises(BadRequest) as e:
         solve_ik(arm, target, **kwargs)  # type: ignore[arg-type]
@@ -268,14 +269,14 @@ def test_bad_input_raises_the_typed_error(name: str, kwargs: dict[str, object], 
 
 
 def test_desk4_parallel_is_its_only_pitch() -> None:
-    arm = robots.load("desk4")
+    arm = plain("desk4")
     q = np.array([0.3, 1.0, -0.8])
     r = solve_ik(arm, arm.fk(q), approach="parallel")
     assert r.status == "ok" and abs(r.pitch) < 1e-12
 
 
 def test_quantised_answers_are_whole_microsteps() -> None:
-    arm = robots.load("gupta3")
+    arm = plain("gupta3")
     steps = arm.actuators
     for q in random_in_limits(arm, 200, seed=23):
         target = arm.fk(q)
@@ -299,6 +300,7 @@ def test_idealised_geometry_is_refined_on_the_exact_model(arm_copy: Callable[...
     """Seed 004's planar model (y_steer = 0) as [geometry]: the QP makes up the difference."""
     folder = arm_copy("desk4", toml_edits=[("pivot = [0.012, 0.008, 0.138]", "pivot = [0.012, 0.0, 0.138]")])
     arm = robots.load_folder(folder)
+    arm.collision = None  # (the refinement's arithmetic, at every configuration within the limits)
     refined = 0
     for q in random_in_limits(arm, 300, seed=24):
         target = arm.fk(q)
@@ -324,6 +326,7 @@ def test_arm_outside_the_family_gets_the_qp(arm_copy: Callable[..., Path]) -> No
     tilted = f'<axis xyz="0 {-math.cos(0.1)!r} {math.sin(0.1)!r}"/>'
     (folder / "robot.urdf").write_text(urdf[:axis] + tilted + urdf[axis + len('<axis xyz="0 -1 0"/>') :])
     arm = robots.load_folder(folder)
+    arm.collision = None  # (the numerical IK's arithmetic, at every configuration within the limits)
     assert arm.geometry is None
     assert (
         arm.solver
@@ -342,7 +345,7 @@ def test_arm_outside_the_family_gets_the_qp(arm_copy: Callable[..., Path]) -> No
 def test_result_to_dict_is_json_ready() -> None:
     import json
 
-    arm = robots.load("sg5ut")
+    arm = plain("sg5ut")
     r = solve_ik(arm, arm.fk(arm.neutral), approach="parallel")
     d = json.loads(json.dumps(r.to_dict()))
     assert d["status"] == "ok" and len(d["q"]) == 4 and d["pitch_error"] == pytest.approx(0.0, abs=1e-9)
@@ -359,7 +362,7 @@ def test_targets_on_the_yaw_axis_do_not_crash() -> None:
         ("desk4", [0.0, 0.0, 0.9]),
     ]
     for name, target in cases:
-        arm = robots.load(name)
+        arm = plain(name)
         r = solve_ik(arm, target)
         assert arm.limits.contains(r.q, tol=0.0)
         assert r.status in ("ok", "unreachable")

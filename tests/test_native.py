@@ -69,7 +69,7 @@ def test_a_call_with_the_wrong_arrays_is_refused_under_the_tests() -> None:
     refuses anything else (here an int array for a float one, a 2-D one for a 1-D one, an arm
     whose arrays are not contiguous or of another type)."""
     assert jit.CHECK
-    pose = solvers.ik.arm_pose
+    pose = solvers.arm.arm_pose  # (a module Numba never switches: see jit._switch_to_numba)
     arm = robots.load("insomniac")
     arrays = arm_state(arm).arrays
     assert arrays is not None

@@ -17,6 +17,7 @@ from armd.solvers.kinematics import pose
 
 ROOT = Path(__file__).resolve().parent.parent
 ARM = robots.load_folder(ROOT / "examples" / "arms" / "mycobot280")
+ARM.collision = None  # (the arithmetic of the numerical IK; its world: tests/test_collision.py)
 
 
 def test_the_six_joint_arm_is_outside_the_family_and_says_why() -> None:

@@ -15,7 +15,7 @@ from armd import robots, solvers
 from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
 from armd.errors import ArmdError, ServiceError
-from tests.conftest import collect
+from tests.conftest import clear_configs, collect
 from tests.test_fk import random_in_limits
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -69,7 +69,7 @@ def test_fk(client: ArmClient) -> None:
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
 def test_ik_matches_in_process(client: ArmClient, name: str) -> None:
     arm = robots.load(name)
-    for q in random_in_limits(arm, 15, seed=50):
+    for q in clear_configs(arm, np.random.default_rng(50), 15):
         target = arm.fk(q)
         r = client.ik(name, target.tolist())
         local = solvers.solve_ik(arm, target)
@@ -79,9 +79,12 @@ def test_ik_matches_in_process(client: ArmClient, name: str) -> None:
 
 def test_ik_batch_and_sensor_target(client: ArmClient) -> None:
     arm = robots.load("insomniac")
-    pts = [arm.fk(q).tolist() for q in random_in_limits(arm, 50, seed=51)] + [[2.0, 0.0, 0.0]]
-    r = client.ik_batch("insomniac", pts)
-    assert r["status"][:-1] == ["ok"] * 50 and r["status"][-1] == "unreachable"
+    pts = [arm.fk(q).tolist() for q in clear_configs(arm, np.random.default_rng(51), 50)] + [[2.0, 0.0, 0.0]]
+    r = client.ik_batch("insomniac", [*pts, [0.3, 0.0, -0.05]])
+    assert r["status"][:50] == ["ok"] * 50 and r["status"][50:] == ["unreachable", "collision"]
+    assert r["contact"][49:] == [None, None, ["tool", "ground"]]
+    under = client.ik("insomniac", [0.3, 0.0, -0.05])  # seed 001: nothing below the floor
+    assert under.status == "collision" and under.contact == ("tool", "ground") and "below the ground" in under.reason
     s = client.ik("insomniac", {"sensor": "et_left", "range": 0.25, "bearing": -0.3}, approach="parallel")
     assert s.status == "ok"
 
@@ -339,7 +342,7 @@ def test_every_arm_moves_through_the_simulator(client: ArmClient, router: str, s
         while service._adapter_count(arm) == 0:  # type: ignore[attr-defined]
             assert time.monotonic() < deadline
             time.sleep(0.05)
-        q = random_in_limits(arm, 1, seed=60)[0]
+        q = clear_configs(arm, np.random.default_rng(60), 1)[0]
         target = arm.fk(q)
         client.move(name, {"target": target.tolist()}, wait=True, wait_timeout=20)
         assert np.linalg.norm(arm.fk(adapter.position) - target) < 1e-3  # within 1 mm, through the servo lag
