@@ -7,6 +7,10 @@
   refused by the planner and drawn again; only planned lines are timed), ``path="line"``.
 * peer in the same run: the bare Ruckig calculation of the same point-to-point segment,
   the floor under the whole plan.
+* the world's cost: every plan is made twice, on the arm with its world (its floor and its
+  own links: every sample and the joint moves between them checked, planning.clearance) and
+  on the same arm without it; starts and goals are clear of collisions. A plan the world
+  refuses (``collision``: the motion passes through the arm or the floor) is counted, not timed.
 
 Run: ``.venv/bin/python bench/plan.py [--n 300]``. Prints a Markdown table of medians and
 p99 [us] per arm.
@@ -25,13 +29,29 @@ import ruckig
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from armd import planning, robots
-from armd.errors import PlanRejected
+from armd.errors import CollisionError, PlanRejected
 
 
 def _random_q(arm: robots.Robot, rng: np.random.Generator, n: int) -> np.ndarray:
     lim = arm.limits
     qs = rng.uniform(lim.lower, lim.upper, size=(20 * n, arm.nq))
     return qs[lim.contains_batch(qs, tol=0.0)][:n]
+
+
+def _clear_q(arm: robots.Robot, rng: np.random.Generator, n: int) -> np.ndarray:
+    world = arm.collision
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        for q in _random_q(arm, rng, n):
+            if world is None or (world.first_contact(q) is None and float(arm.fk(q)[2]) >= (world.ground or -np.inf)):
+                out.append(q)
+    return np.array(out[:n])
+
+
+def _plain(name: str) -> robots.Robot:
+    arm = robots.load_folder(robots.CATALOGUE_DIR / name)
+    arm.collision = None
+    return arm
 
 
 def _stats(us: list[float]) -> str:
@@ -45,22 +65,31 @@ def main() -> None:
     args = ap.parse_args()
     rng = np.random.default_rng(7)
     print(
-        "| arm | p2p median us | p2p p99 us | bare Ruckig median us | p99 | line 0.2 m median us | p99 | "
-        "lines planned |"
+        "| arm | p2p median us | p99 | p2p without the world median us | p99 | refused (collision) | "
+        "bare Ruckig median us | p99 | line 0.2 m median us | p99 | without the world | p99 | lines planned |"
     )
-    print("|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in robots.names():
-        arm = robots.load(name)
-        starts = _random_q(arm, rng, args.n)
-        goals = _random_q(arm, rng, args.n)
+        arm, plain = robots.load(name), _plain(name)
+        starts = _clear_q(arm, rng, args.n)
+        goals = _clear_q(arm, rng, args.n)
         targets = [arm.fk(q) for q in goals]
         planning.plan(arm, starts[0], {"target": targets[0].tolist()})  # warm-up (compiled code)
-        p2p, bare, line = [], [], []
+        p2p, p2p_plain, bare, line, line_plain = [], [], [], [], []
+        refused = 0
         otg = ruckig.Ruckig(arm.nq, 0.02)
         for q0, q1, t in zip(starts, goals, targets, strict=True):
             t0 = time.perf_counter_ns()
-            planning.plan(arm, q0, {"target": t.tolist()})
-            p2p.append((time.perf_counter_ns() - t0) / 1e3)
+            planning.plan(plain, q0, {"target": t.tolist()})
+            without = (time.perf_counter_ns() - t0) / 1e3
+            t0 = time.perf_counter_ns()
+            try:
+                planning.plan(arm, q0, {"target": t.tolist()})
+            except CollisionError:
+                refused += 1
+            else:
+                p2p.append((time.perf_counter_ns() - t0) / 1e3)
+                p2p_plain.append(without)
             inp = ruckig.InputParameter(arm.nq)
             inp.current_position, inp.target_position = q0.tolist(), q1.tolist()
             inp.max_velocity = arm.limits.velocity.tolist()
@@ -73,19 +102,26 @@ def main() -> None:
         planned = tried = 0
         for q0 in starts[: max(10, args.n // 3)]:
             p0 = arm.fk(q0)
-            for _ in range(30):  # a direction whose 0.2 m line the arm can follow
+            for _ in range(30):  # a direction whose 0.2 m line the arm can follow, clear of its world
                 d = rng.normal(size=3)
                 p1 = p0 + 0.2 * d / np.linalg.norm(d)
                 tried += 1
                 t0 = time.perf_counter_ns()
                 try:
                     planning.plan(arm, q0, {"target": p1.tolist()}, path="line")
-                except PlanRejected:
+                except (PlanRejected, CollisionError):
                     continue
                 line.append((time.perf_counter_ns() - t0) / 1e3)
+                t0 = time.perf_counter_ns()
+                planning.plan(plain, q0, {"target": p1.tolist()}, path="line")
+                line_plain.append((time.perf_counter_ns() - t0) / 1e3)
                 planned += 1
                 break
-        print(f"| {name} | {_stats(p2p)} | {_stats(bare)} | {_stats(line) if line else '- | -'} | {planned}/{tried} |")
+        print(
+            f"| {name} | {_stats(p2p)} | {_stats(p2p_plain)} | {refused}/{len(starts)} | {_stats(bare)} | "
+            f"{_stats(line) if line else '- | -'} | {_stats(line_plain) if line_plain else '- | -'} | "
+            f"{planned}/{tried} |"
+        )
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from armd.errors import BadRequest, PlanRejected
+from armd.errors import BadRequest, CollisionError, PlanRejected
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
@@ -40,7 +40,9 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
     """The joint configuration [rad] a goal names: IK (seeded with ``seed``) for a Cartesian goal.
 
     An unreachable target is :class:`PlanRejected`; a pitch that is not reachable there
-    (IK ``approximate``) is too: a plan never silently changes the approach it was given.
+    (IK ``approximate``) is too: a plan never silently changes the approach it was given. A goal
+    that collides (a joint goal in contact, a target IK answers ``collision``) is
+    :class:`CollisionError`, naming the pair.
     """
     cg = cartesian(goal)
     if cg is None:
@@ -49,8 +51,16 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
         bad = robot.limits.violations(qv, tol=1e-9)
         if bad:
             raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=field)
-        return robot.limits.clip(qv)
+        qv = robot.limits.clip(qv)
+        hit = robot.collision.first_contact(qv) if robot.collision is not None else None
+        if hit is not None:
+            raise CollisionError(
+                f"{field}: the joint configuration puts {hit} in contact", pair=(hit.first, hit.second), field=field
+            )
+        return qv
     r = solve_ik(robot, cg.target, approach=cg.approach, seed=seed, roll=cg.roll)
+    if r.status == "collision" and r.contact is not None:
+        raise CollisionError(f"{field}: {r.reason}", pair=r.contact, field=field, position_error=r.position_error)
     if r.status != "ok":
         raise PlanRejected(f"{field}: {r.reason}", field=field, position_error=r.position_error)
     return r.q

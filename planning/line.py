@@ -105,7 +105,9 @@ class LinePath:
         if ri >= 0:
             seeds = np.array(seeds, dtype=float)
             seeds[:, ri] = self.rolls(ss)
-        r = solve_ik_batch(self.robot, self.points(ss), approach=self.pitches(ss), seeds=seeds)
+        # (IK as if the arm had no world: the line's motion is checked whole once timed, and a
+        # branch the world would pick instead would be a branch flip)
+        r = solve_ik_batch(self.robot, self.points(ss), approach=self.pitches(ss), seeds=seeds, collisions=False)
         ok = r.status == "ok"
         if ri >= 0:
             ok &= np.abs(r.q[:, ri] - seeds[:, ri]) <= 1e-9
@@ -121,7 +123,7 @@ class LinePath:
             seed = np.array(seed, dtype=float)
             seed[self.roll_index] = self.rolls(np.array([s]))[0]
             roll = self.robot.tool_roll(seed)
-        r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed, roll=roll)
+        r = solve_ik(self.robot, self.point(s), approach=self.pitch(s), seed=seed, roll=roll, collisions=False)
         if r.status != "ok":
             raise PlanRejected(
                 f"the line leaves the reachable space {s:.4f} m from the start at {self.point(s).round(4).tolist()}: "

@@ -7,9 +7,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from armd.errors import BadRequest, TrajectoryTooLong
+from armd.errors import BadRequest, CollisionError, TrajectoryTooLong
 from armd.robots import Robot
+from armd.robots.collision import GROUND
 
+from .clearance import check_clear
 from .goal import goal_configuration, goal_point
 from .line import line_samples
 from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles
@@ -73,9 +75,13 @@ def plan(
         check: called between the planning stages (each IK, each timing pass); whatever it
             raises abandons the plan. The service's per-request deadline uses it.
 
+    Every sample and the straight joint moves between them are checked against the arm's world
+    (:mod:`planning.clearance`: its own links, its floor, its obstacles).
+
     Raises:
         BadRequest: malformed input. PlanRejected: a goal out of reach, a line that leaves the
         reachable space or needs a branch flip. LimitError: a sample would break a limit.
+        CollisionError: the goal, or the motion at some time, puts two things in contact.
         TrajectoryTooLong: more than ``max_samples`` samples.
     """
     rate = _rate(robot, rate_hz)
@@ -87,10 +93,19 @@ def plan(
         if via:
             raise BadRequest("a line goes straight to its goal: via points are for joint paths", field="via")
         point, pitch, roll = goal_point(robot, goal, s.position)
+        world = robot.collision
+        if world is not None and world.ground is not None and float(point[2]) < world.ground:
+            raise CollisionError(
+                f"goal: the target is {world.ground - float(point[2]):.4g} m below the floor",
+                pair=(robot.tool_frame, GROUND),
+                field="goal",
+            )
         duration, times, P, V, A, evaluate = line_samples(
             robot, s, point, pitch, spd, rate, max_samples=max_samples, check=check, goal_roll=roll
         )
-        return build(robot, "line", rate, duration, times, P, V, A, evaluate)
+        traj = build(robot, "line", rate, duration, times, P, V, A, evaluate)
+        check_clear(robot, traj.times, traj.position, "the line")
+        return traj
     if isinstance(via, (str, bytes)) or not isinstance(via, Sequence):
         raise BadRequest("via must be a list of goals", field="via")
     goals = []
@@ -104,7 +119,9 @@ def plan(
     rpath = joint_path(robot, s, goals, spd, 1.0 / rate)
     if check is not None:
         check()
-    return _sampled(robot, "joint", rate, rpath, max_samples)
+    traj = _sampled(robot, "joint", rate, rpath, max_samples)
+    check_clear(robot, traj.times, traj.position)
+    return traj
 
 
 def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None, clamp: bool = False) -> Trajectory:

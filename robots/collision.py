@@ -18,7 +18,9 @@ fixed in the base frame) are checked against every shape that moves.
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 import threading
 import warnings
 from collections.abc import Iterable
@@ -167,9 +169,57 @@ class CollisionModel:
                     # the default guess instead (tests/test_collision.py)
                     request.enable_cached_gjk_guess = False
                     request.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
+                for drequest in gdata.distanceRequests:
+                    drequest.enable_cached_gjk_guess = False
+                    drequest.gjk_initial_guess = coal.GJKInitialGuess.DefaultGuess
             scratch = (self.model.createData(), gdata)
             self._local.scratch = scratch
         return scratch
+
+    def clearance(self, q: FloatArray) -> tuple[float, Contact | None]:
+        """The smallest distance [m] between the shapes of a checked pair at ``q`` [rad] and that
+        pair (0 or less: in contact); (inf, None) when no pair is checked."""
+        if not self.pairs:
+            return math.inf, None
+        data, gdata = self._scratch()
+        k = int(pin.computeDistances(self.model, data, self.geometry, gdata, np.asarray(q, dtype=float)))
+        return float(gdata.distanceResults[k].min_distance), self.pairs[k]
+
+    @functools.cached_property
+    def travel(self) -> FloatArray:
+        """How far [m] any point of any moving shape may go per radian of each joint (per metre of
+        a prismatic one), at most: a straight move of the joints by ``dq`` moves no point of the
+        arm farther than ``abs(dq) @ travel``. From the URDF's geometry: the distance from each
+        joint's origin to the farthest point of every shape it carries (its own link's and every
+        link beyond it), bounded along the chain by the joints' offsets (triangle inequality),
+        summed over the joints a coordinate drives (a mimic joint by its scaling)."""
+        model, geom = self.model, self.geometry
+        reach = np.zeros(model.njoints)  # joint -> farthest carried point from its origin [m]
+        extra = np.zeros(model.njoints)  # a prismatic joint's own stroke, added above it
+        for j in range(1, model.njoints):
+            if "Prismatic" in model.joints[j].shortname():
+                k = model.joints[j].idx_q
+                extra[j] = float(max(abs(model.lowerPositionLimit[k]), abs(model.upperPositionLimit[k])))
+        for g in geom.geometryObjects:
+            j = int(g.parentJoint)
+            if j <= 0:
+                continue
+            g.geometry.computeLocalAABB()
+            centre = g.placement.act(np.asarray(g.geometry.aabb_center, dtype=float))
+            r = float(np.linalg.norm(centre)) + float(g.geometry.aabb_radius)
+            while j > 0:  # up the chain: each parent's origin is farther by the child's offset
+                reach[j] = max(reach[j], r)
+                r += extra[j] + float(np.linalg.norm(model.jointPlacements[j].translation))
+                j = int(model.parents[j])
+        out = np.zeros(model.nq)
+        for j in range(1, model.njoints):
+            joint = model.joints[j]
+            scale = abs(float(joint.extract().scaling)) if "Mimic" in joint.shortname() else 1.0
+            per = 1.0 if "Prismatic" in joint.shortname() else reach[j]
+            for k in range(joint.idx_q, joint.idx_q + max(joint.nq, 1)):
+                if k < model.nq:
+                    out[k] += scale * per
+        return out
 
     def first_contact(self, q: FloatArray) -> Contact | None:
         """The first pair in collision at ``q`` [rad], or None: the arm is clear of itself and

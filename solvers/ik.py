@@ -70,6 +70,7 @@ def solve_ik(
     tolerance: float = DEFAULT_TOLERANCE,
     quantise: bool = False,
     roll: float | None = None,
+    collisions: bool = True,
 ) -> IKResult:
     """Joint vector that puts ``robot``'s tool point on ``target``, within every limit.
 
@@ -85,6 +86,8 @@ def solve_ik(
         roll: the tool's roll about its axis [rad] (:meth:`Robot.tool_roll`; an arm with a
             wrist roll): held through the solve. Without it the seed's roll is kept, and changed
             only where the target is out of reach with it.
+        collisions: False: answer as if the arm had no world (no floor, obstacles or links to
+            touch): for a Cartesian line, whose motion is checked whole (planning.clearance).
 
     Raises:
         BadRequest: malformed target, approach, seed, tolerance or roll (nothing is solved).
@@ -108,7 +111,7 @@ def solve_ik(
         result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
         result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
-    world = robot.collision
+    world = robot.collision if collisions else None
     if world is not None:
         result = clear(arm, result, lambda: _alternatives(arm, point, pitch, ref, tolerance))
     if quantise:

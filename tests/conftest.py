@@ -118,7 +118,9 @@ def clear_configs(arm: robots.Robot, rng: object, n: int) -> list[object]:
     IK must reach ``ok`` (a colliding one's answer is ``collision``: tests/test_collision.py)."""
     out: list[object] = []
     world = arm.collision
-    while len(out) < n:
+    for _ in range(200_000):
+        if len(out) == n:
+            break
         q = rng.uniform(arm.limits.lower, arm.limits.upper)  # type: ignore[attr-defined]
         if not arm.limits.contains(q):
             continue
@@ -127,6 +129,7 @@ def clear_configs(arm: robots.Robot, rng: object, n: int) -> list[object]:
         ):
             continue
         out.append(q)
+    assert len(out) == n, f"{arm.name}: no clear configuration in 200,000 draws"
     return out
 
 

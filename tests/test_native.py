@@ -32,7 +32,8 @@ for name in robots.names():
     targets = [arm.fk(q) for q in qs] + [10.0 * arm.fk(arm.neutral) + 1.0]  # (and one out of reach)
     one = [solvers.solve_ik(arm, t) for t in targets]
     many = solvers.solve_ik_batch(arm, np.array(targets[:-1]))
-    traj = planning.plan(arm, arm.neutral, qs[0] if arm.limits.contains(qs[0]) else arm.neutral)
+    clear = arm.limits.contains(qs[0]) and arm.collision.first_contact(qs[0]) is None
+    traj = planning.plan(arm, arm.neutral, qs[0] if clear else arm.neutral)
     out[name] = {"q": [r.q.tolist() for r in one], "status": [r.status for r in one],
                  "pitch": [r.pitch for r in one], "batch_q": many.q.tolist(), "plan": traj.position.tolist()}
 print(json.dumps(out))

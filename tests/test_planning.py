@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from conftest import plain
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -48,7 +49,7 @@ def assert_safe(arm: robots.Robot, tr: planning.Trajectory) -> None:
 @SETTINGS
 @given(a=st.data())
 def test_joint_plans_are_safe_and_arrive(name: str, a: st.DataObject) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     q0 = in_limits(arm, a.draw(unit(arm.nq)))
     q1 = in_limits(arm, a.draw(unit(arm.nq)))
     if q0 is None or q1 is None:
@@ -70,7 +71,7 @@ def test_joint_plans_are_safe_and_arrive(name: str, a: st.DataObject) -> None:
 @SETTINGS
 @given(a=st.data())
 def test_plans_from_a_moving_state_and_stops(name: str, a: st.DataObject) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     q0 = in_limits(arm, a.draw(unit(arm.nq)))
     q1 = in_limits(arm, a.draw(unit(arm.nq)))
     q2 = in_limits(arm, a.draw(unit(arm.nq)))
@@ -111,7 +112,7 @@ def test_a_slow_plan_from_a_fast_moving_state_brakes_first(speed: float) -> None
 @SETTINGS
 @given(a=st.data())
 def test_lines_stay_on_the_line(name: str, a: st.DataObject) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     q0 = in_limits(arm, a.draw(unit(arm.nq)))
     if q0 is None:
         return
@@ -175,7 +176,7 @@ def test_cartesian_goal_and_approach() -> None:
 
 
 def test_desk4_coupled_limit_holds_between_goals() -> None:
-    arm = robots.load("desk4")
+    arm = plain("desk4")
     a = np.array([0.0, 0.2, -1.35])  # q2 + q3 = -1.15, near the lower bound
     b = np.array([0.0, 1.95, -1.1])  # q2 + q3 = 0.85, near the upper bound
     tr = plan(arm, a, b)
@@ -259,7 +260,7 @@ def test_compiled_gate_never_passes_what_the_checks_refuse(name: str) -> None:
     from armd.planning.checks import POSITION_TOL, RATE_TOL
     from armd.planning.trajectory import build
 
-    arm = robots.load(name)
+    arm = plain(name)
     lim = arm.limits
     rng = np.random.default_rng(11)
     goal = rng.uniform(lim.lower, lim.upper)

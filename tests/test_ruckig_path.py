@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import ruckig
+from conftest import plain
 
 from armd import planning, robots
 from armd.errors import BadRequest, LimitError
@@ -15,7 +16,7 @@ from tests.test_fk import random_in_limits
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
 def test_sample_equals_at_time(name: str) -> None:
-    arm = robots.load(name)
+    arm = plain(name)
     qs = random_in_limits(arm, 90, seed=9)
     worst = 0.0
     for i in range(0, 87, 3):

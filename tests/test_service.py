@@ -114,6 +114,8 @@ BAD = [
     ("gupta3/plan", b'{"goal": [0.0, 1.0, 0.5]}', "bad_request", "goal"),
     ("gupta3/plan", b'{"goal": {"target": [3.0, 0.0, 0.0]}}', "unreachable", "goal"),
     ("gupta3/plan", b'{"goal": [0.5, 1.0, -1.0], "speed": 2}', "bad_request", "speed"),
+    ("insomniac/plan", b'{"goal": {"target": [0.3, 0.0, -0.05]}}', "collision", "goal"),  # under the floor
+    ("insomniac/plan", b'{"goal": {"target": [0.3, 0.0, -0.05]}, "path": "line"}', "collision", "goal"),
     ("gupta3/move", b'{"goal": [0.5, 1.0, -1.0]}', "no_adapter", None),
     ("gupta4/ik", b'{"target": [0.1, 0.0, 0.1]}', "unknown_robot", None),
     ("gupta3/dance", b"{}", "unknown_verb", None),
@@ -145,6 +147,7 @@ def test_no_trajectory_published_for_refused_requests(client: ArmClient, router:
     try:
         for payload in (b'{"goal": [0.0, 1.0, 0.5]}', b"nope", b'{"goal": {"target": [3, 0, 0]}}'):
             raw(client, "gupta3/move", payload)
+        raw(client, "insomniac/move", b'{"goal": {"target": [0.3, 0.0, -0.05]}}')  # (collision)
         time.sleep(0.3)
     finally:
         sub.undeclare()

@@ -22,6 +22,7 @@ error in-process.
     |-- LimitError               limit             (a value outside a limit)
     |   |-- JointLimitError, CoupledLimitError, ActuatorRangeError
     |-- PlanRejected             unreachable       (a motion that cannot be planned as asked)
+    |-- CollisionError           collision         (a motion or goal that puts two things in contact)
     |-- PositionUnknown          position_unknown  (the controller lost the arm's position)
     |-- NoAdapter                no_adapter        (nothing would execute a move)
     |-- Rejected                 rejected          (every live adapter refused the trajectory)
@@ -224,6 +225,21 @@ class PlanRejected(ArmdError):
     a branch flip, a goal out of reach). Nothing is planned; ``reason`` says why."""
 
     code = "unreachable"
+
+
+class CollisionError(ArmdError):
+    """The motion would put two things in contact (``pair``: link names, an obstacle's name or
+    ``ground``) at ``time`` [s] from its start (absent: the goal itself collides), or nothing
+    clear reaches the goal. Nothing is planned, nothing moves."""
+
+    code = "collision"
+
+    def __init__(
+        self, message: str, *, pair: tuple[str, str] | list[str], time: float | None = None, **fields: Any
+    ) -> None:
+        super().__init__(message, pair=list(pair), time=time, **fields)
+        self.pair = tuple(pair)
+        self.time = time
 
 
 class PositionUnknown(ArmdError):

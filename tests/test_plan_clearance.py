@@ -1,0 +1,266 @@
+"""planning.clearance: every plan clear of the arm's world, at every sample and between them.
+
+The plans are held against an independent computation: coal's distance between each checked
+pair's shapes, placed by Pinocchio data made for each configuration alone, along the joint
+polyline through the samples at 1 mm of travel."""
+
+from __future__ import annotations
+
+import math
+
+import coal
+import numpy as np
+import pinocchio as pin
+import pytest
+from conftest import clear_configs
+
+from armd import planning, robots
+from armd.errors import CollisionError, PlanRejected
+from armd.planning.clearance import RESOLUTION, check_clear
+from armd.robots.collision import GROUND, Obstacle
+
+ARMS = robots.names()
+
+
+def distance(arm: robots.Robot, q: np.ndarray) -> tuple[float, tuple[str, str]]:
+    """The smallest distance between a checked pair at ``q`` and the pair, from scratch."""
+    cm = arm.collision
+    assert cm is not None
+    data, gdata = cm.model.createData(), pin.GeometryData(cm.geometry)
+    pin.updateGeometryPlacements(cm.model, data, cm.geometry, gdata, q)
+    objs = cm.geometry.geometryObjects
+    best, pair = math.inf, ("", "")
+    for k, cp in enumerate(cm.geometry.collisionPairs):
+        a, b = cp.first, cp.second
+        request, result = coal.DistanceRequest(), coal.DistanceResult()
+        d = coal.distance(
+            objs[a].geometry,
+            coal.Transform3s(gdata.oMg[a].rotation, gdata.oMg[a].translation),
+            objs[b].geometry,
+            coal.Transform3s(gdata.oMg[b].rotation, gdata.oMg[b].translation),
+            request,
+            result,
+        )
+        if d < best:
+            best, pair = d, (cm.pairs[k].first, cm.pairs[k].second)
+    return best, pair
+
+
+def along(times: np.ndarray, P: np.ndarray, step: float, until: float = math.inf):  # type: ignore[no-untyped-def]
+    """(t, q) along the straight joint moves between the samples, at most ``step`` [rad] apart
+    in every joint, up to time ``until``."""
+    for k in range(len(P) - 1):
+        n = max(1, math.ceil(float(np.max(np.abs(P[k + 1] - P[k]))) / step))
+        for i in range(n):
+            f = i / n
+            t = float(times[k] + f * (times[k + 1] - times[k]))
+            if t >= until:
+                return
+            yield t, P[k] + f * (P[k + 1] - P[k])
+    if times[-1] < until:
+        yield float(times[-1]), P[-1]
+
+
+def with_box(arm: robots.Robot, size: tuple[float, float, float], centre: tuple[float, float, float]) -> robots.Robot:
+    copy = robots.load_folder(robots.CATALOGUE_DIR / arm.name)
+    copy.collision = arm.collision.with_obstacles([Obstacle("crate", "box", size, centre)])  # type: ignore[union-attr]
+    return copy
+
+
+@pytest.mark.parametrize("name", ARMS)
+def test_the_travel_bound_holds(name: str) -> None:
+    """No corner of any moving shape's box moves farther than ``abs(dq) @ travel`` along a
+    straight move of the joints (the bound the walk's steps rest on)."""
+    arm = robots.load(name)
+    cm = arm.collision
+    assert cm is not None
+    rng = np.random.default_rng(sum(name.encode()))
+    corners = []
+    for g in cm.geometry.geometryObjects:
+        if g.parentJoint == 0:
+            continue
+        g.geometry.computeLocalAABB()
+        lo, hi = np.asarray(g.geometry.aabb_local.min_), np.asarray(g.geometry.aabb_local.max_)
+        corners.append([np.where(np.array(bits), hi, lo) for bits in np.ndindex(2, 2, 2)])
+    data = cm.model.createData()
+
+    def points(q: np.ndarray) -> np.ndarray:
+        pin.framesForwardKinematics(cm.model, data, q)
+        pin.updateGeometryPlacements(cm.model, data, cm.geometry, gdata, q)
+        out = []
+        moving = [g for g in range(len(cm.geometry.geometryObjects)) if cm.geometry.geometryObjects[g].parentJoint]
+        for g, cs in zip(moving, corners, strict=True):
+            out += [gdata.oMg[g].act(c) for c in cs]
+        return np.array(out)
+
+    gdata = pin.GeometryData(cm.geometry)
+    worst = 0.0
+    for _ in range(300):
+        qa = rng.uniform(arm.limits.lower, arm.limits.upper)
+        qb = np.clip(qa + rng.normal(scale=0.3, size=arm.nq), arm.limits.lower, arm.limits.upper)
+        bound = float(np.abs(qb - qa) @ cm.travel)
+        pa = points(qa)
+        path = 0.0
+        prev = pa
+        for f in np.linspace(0, 1, 9)[1:]:
+            p = points(qa + f * (qb - qa))
+            path += float(np.max(np.linalg.norm(p - prev, axis=1)))  # (a lower bound of the longest path)
+            prev = p
+        assert float(np.max(np.linalg.norm(prev - pa, axis=1))) <= bound + 1e-12
+        worst = max(worst, path / bound)
+    assert worst <= 1.0 + 1e-9
+    assert worst > 0.3  # (the bound is not vacuous: a tenth of the arm's reach per radian would fail this)
+
+
+@pytest.mark.parametrize("name", ARMS)
+def test_every_plan_is_clear_or_refused_naming_a_real_contact(name: str) -> None:
+    """Random clear starts and goals among a random box: a plan that is made is clear along the
+    whole motion (independently, at 1 mm steps); a refusal names a pair in contact at the time it
+    says, and the motion before that time is clear."""
+    base = robots.load(name)
+    rng = np.random.default_rng(sum(name.encode()) + 17)
+    made = refused = 0
+    for trial in range(12):
+        reach = float(np.linalg.norm(base.fk(base.neutral)))
+        start, goal = clear_configs(base, rng, 2)
+        while True:  # a box, half the time where the tool passes halfway, that leaves both ends clear
+            if trial % 2:
+                centre = rng.uniform([-reach, -reach, 0.02], [reach, reach, reach])
+            else:
+                centre = base.fk(0.5 * (start + goal)) + rng.normal(scale=0.02, size=3)
+            size = tuple(rng.uniform(0.03, 0.12, size=3))
+            arm = with_box(base, size, tuple(centre))  # type: ignore[arg-type]
+            cm = arm.collision
+            assert cm is not None
+            if cm.first_contact(start) is None and cm.first_contact(goal) is None:
+                break
+            start, goal = clear_configs(base, rng, 2)
+        step = 0.001 / float(np.max(arm.collision.travel))  # type: ignore[union-attr]
+        rate = float(rng.choice([5.0, 50.0]))
+        try:
+            tr = planning.plan(arm, start, goal, rate_hz=rate)
+        except CollisionError as e:
+            refused += 1
+            assert e.time is not None and e.time > 0.0
+            tr = planning.plan(_plain(arm), start, goal, rate_hz=rate)  # the motion that was refused
+            pair_d = _pair_distance(arm, _at(tr, e.time), e.pair)
+            assert pair_d <= 1e-6, (trial, e.pair, pair_d)
+            for t, q in along(tr.times, tr.position, step, until=e.time - 1e-9):
+                assert distance(arm, q)[0] > -2.5e-5, (trial, t)  # (the time is found to 20 um of travel)
+            continue
+        made += 1
+        for t, q in along(tr.times, tr.position, step):
+            d, pair = distance(arm, q)
+            assert d > -1e-9, (trial, t, pair, d)
+    assert made >= 3 and refused >= 1, (made, refused)
+
+
+def _plain(arm: robots.Robot) -> robots.Robot:
+    """The same arm without its world: the motion the checked plan would have been."""
+    copy = robots.load_folder(robots.CATALOGUE_DIR / arm.name)
+    copy.collision = None
+    return copy
+
+
+def _at(tr: planning.Trajectory, t: float) -> np.ndarray:
+    """The configuration on the straight joint move between the samples around time ``t``."""
+    k = min(int(np.searchsorted(tr.times, t, side="right")) - 1, len(tr.times) - 2)
+    f = (t - tr.times[k]) / (tr.times[k + 1] - tr.times[k])
+    return np.asarray(tr.position[k] + f * (tr.position[k + 1] - tr.position[k]))
+
+
+def _pair_distance(arm: robots.Robot, q: np.ndarray, pair: tuple[str, str]) -> float:
+    cm = arm.collision
+    assert cm is not None
+    k = [(p.first, p.second) for p in cm.pairs].index(tuple(pair))
+    data, gdata = cm.model.createData(), pin.GeometryData(cm.geometry)
+    pin.updateGeometryPlacements(cm.model, data, cm.geometry, gdata, q)
+    cp = cm.geometry.collisionPairs[k]
+    objs = cm.geometry.geometryObjects
+    return float(
+        coal.distance(
+            objs[cp.first].geometry,
+            coal.Transform3s(gdata.oMg[cp.first].rotation, gdata.oMg[cp.first].translation),
+            objs[cp.second].geometry,
+            coal.Transform3s(gdata.oMg[cp.second].rotation, gdata.oMg[cp.second].translation),
+            coal.DistanceRequest(),
+            coal.DistanceResult(),
+        )
+    )
+
+
+def test_a_thin_plate_between_two_clear_samples_is_found() -> None:
+    """Two samples, both clear, on either side of a 2 mm plate the arm sweeps through: the check
+    between them finds it (the samples alone would not)."""
+    base = robots.load("insomniac")
+    qa = base.neutral.copy()
+    qa[0] = -0.4
+    qb = qa.copy()
+    qb[0] = 0.4
+    tip = base.fk(base.neutral)
+    arm = with_box(base, (0.3, 0.002, 0.3), (float(tip[0]) * 0.8, 0.0, float(tip[2])))
+    assert arm.collision.first_contact(qa) is None and arm.collision.first_contact(qb) is None  # type: ignore[union-attr]
+    with pytest.raises(CollisionError) as e:
+        check_clear(arm, np.array([0.0, 1.0]), np.array([qa, qb]))
+    assert "crate" in e.value.pair and 0.0 < e.value.time < 1.0  # type: ignore[operator]
+    assert e.value.to_dict()["code"] == "collision"
+    n = check_clear(base, np.array([0.0, 1.0]), np.array([qa, qb]))  # (without the plate: clear, few checks)
+    assert 1 <= n <= 20
+
+
+def test_a_plan_through_a_box_is_refused_naming_the_pair_and_the_time() -> None:
+    """A crate on the way of a joint move and of a line: refused with ``collision``, the arm's
+    link and the crate named, the time inside the motion; the same move without it is planned."""
+    arm = robots.load("insomniac")
+    start = arm.neutral.copy()
+    start[0] = -0.8
+    goal = start.copy()
+    goal[0] = 0.8
+    tip = arm.fk(arm.neutral)
+    clear = planning.plan(arm, start, goal)
+    # the joint move swings the tool round an arc through the tip at yaw 0, the line along its chord
+    for kwargs, x in (({}, tip[0]), ({"path": "line"}, tip[0] * math.cos(0.8))):
+        boxed = with_box(arm, (0.06, 0.06, 0.06), (float(x), 0.0, float(tip[2])))
+        g = goal if not kwargs else {"target": arm.fk(goal).tolist()}
+        planning.plan(arm, start, g, **kwargs)  # type: ignore[arg-type]
+        with pytest.raises(CollisionError) as e:
+            planning.plan(boxed, start, g, **kwargs)  # type: ignore[arg-type]
+        assert e.value.pair[1] == "crate" and e.value.pair[0] in boxed.collision.links  # type: ignore[union-attr]
+        assert e.value.time is not None and 0.0 < e.value.time < clear.duration * 2
+        assert f"t = {e.value.time:.4f} s" in e.value.message
+
+
+def test_goals_that_collide_are_refused_naming_the_pair() -> None:
+    arm = robots.load("insomniac")
+    with pytest.raises(CollisionError) as e:
+        planning.plan(arm, arm.neutral, {"target": [0.3, 0.0, -0.05]})  # under the floor (seed 001)
+    assert e.value.pair[1] == GROUND and e.value.fields["field"] == "goal"
+    tip = arm.fk(arm.neutral)
+    boxed = with_box(arm, (0.08, 0.08, 0.08), (float(tip[0]), float(tip[1]), float(tip[2])))
+    with pytest.raises(CollisionError) as e:
+        planning.plan(boxed, clear_configs(boxed, np.random.default_rng(3), 1)[0], arm.neutral)
+    assert "crate" in e.value.pair and e.value.time is None
+    with pytest.raises((CollisionError, PlanRejected)):
+        planning.plan(boxed, arm.neutral, {"target": tip.tolist()}, path="line")
+
+
+def test_stops_are_never_checked() -> None:
+    """A stop is never refused: from a state already in contact, it is planned all the same."""
+    arm = robots.load("insomniac")
+    tip = arm.fk(arm.neutral)
+    boxed = with_box(arm, (0.08, 0.08, 0.08), (float(tip[0]), float(tip[1]), float(tip[2])))
+    assert boxed.collision.first_contact(arm.neutral) is not None  # type: ignore[union-attr]
+    moving = planning.JointState(arm.neutral, np.full(arm.nq, 0.3), np.zeros(arm.nq))
+    stop = planning.plan_stop(boxed, moving)
+    assert stop.duration > 0.0
+    assert RESOLUTION == 0.005
+
+
+def test_a_refusal_over_the_service_is_a_collision_error_naming_the_pair(client: object) -> None:
+    """The client raises the same class as the planner in-process, with the pair."""
+    from armd.clients import ArmClient
+
+    assert isinstance(client, ArmClient)
+    with pytest.raises(CollisionError) as e:
+        client.plan("insomniac", {"target": [0.3, 0.0, -0.05]})
+    assert e.value.code == "collision" and tuple(e.value.pair) == ("tool", GROUND)
