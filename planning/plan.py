@@ -10,7 +10,9 @@ import numpy as np
 from armd.errors import BadRequest, CollisionError, TrajectoryTooLong
 from armd.robots import Robot
 from armd.robots.collision import GROUND
+from armd.robots.types import FloatArray
 
+from . import sampling
 from .clearance import check_clear
 from .goal import goal_configuration, goal_point
 from .line import line_samples
@@ -120,8 +122,53 @@ def plan(
     if check is not None:
         check()
     traj = _sampled(robot, "joint", rate, rpath, max_samples)
-    check_clear(robot, traj.times, traj.position)
+    try:
+        check_clear(robot, traj.times, traj.position)
+    except CollisionError as e:
+        if s.moving or e.time is None:  # (from a moving state the arm is not on a straight move: no way round)
+            raise
+        traj = _around(robot, s, goals, spd, rate, max_samples, check, e)
     return traj
+
+
+def _around(
+    robot: Robot,
+    s: JointState,
+    goals: list[FloatArray],
+    spd: float,
+    rate: float,
+    max_samples: int | None,
+    check: Callable[[], None] | None,
+    hit: CollisionError,
+) -> Trajectory:
+    """The joint path through ``goals`` from ``s`` (at rest) around what ``hit`` ran into: each
+    leg by the sampling planner, timed through its configurations without stopping where the
+    result stays clear, else at rest on each (straight joint moves: clear by construction)."""
+    vias: list[FloatArray] = []
+    prev = s.position
+    for goal in goals:
+        leg = sampling.path_around(robot, prev, goal)
+        if check is not None:
+            check()
+        if leg is None:
+            raise CollisionError(
+                f"{hit.message}, and the sampling planner (RRT-Connect) found no way around in {sampling.TIME:g} s",
+                pair=(hit.pair[0], hit.pair[1]),
+                time=hit.time,
+            )
+        vias += leg[1:]
+        prev = goal
+    last: CollisionError = hit
+    for rest in (False, True):
+        rpath = joint_path(robot, s, vias, spd, 1.0 / rate, rest_at_vias=rest)
+        traj = _sampled(robot, "joint", rate, rpath, max_samples)
+        try:
+            check_clear(robot, traj.times, traj.position)
+        except CollisionError as e:
+            last = e
+            continue
+        return traj
+    raise last  # (not reached: at rest on each via the motion is the planner's own straight moves)
 
 
 def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None, clamp: bool = False) -> Trajectory:

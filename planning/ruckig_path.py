@@ -240,9 +240,12 @@ def _otg(nq: int, dt: float) -> ruckig.Ruckig:
     return otg
 
 
-def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float, dt: float) -> RuckigPath:
+def joint_path(
+    robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float, dt: float, *, rest_at_vias: bool = False
+) -> RuckigPath:
     """Through every goal in order, ending at rest on the last; waypoints passed without
-    stopping where that is possible."""
+    stopping where that is possible (``rest_at_vias``: at rest on each, so that from a start at
+    rest every segment is the straight joint move between its ends)."""
     limits = Limits.of(robot, speed)
     otg = _otg(robot.nq, dt)
     segments: list[ruckig.Trajectory] = []
@@ -269,7 +272,7 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
             prev = state.position
     for k, goal in enumerate(goals):
         last = k == len(goals) - 1
-        v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
+        v = np.zeros(robot.nq) if last or rest_at_vias else _pass_velocity(prev, goal, goals[k + 1], limits)
         traj = _segment(otg, state, goal, v, limits)
         if not last and any(v.tolist()) and not _within(traj, robot, dt):  # passing would overshoot: stop there
             v = np.zeros(robot.nq)

@@ -113,13 +113,15 @@ def test_the_travel_bound_holds(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", ARMS)
-def test_every_plan_is_clear_or_refused_naming_a_real_contact(name: str) -> None:
-    """Random clear starts and goals among a random box: a plan that is made is clear along the
-    whole motion (independently, at 1 mm steps); a refusal names a pair in contact at the time it
-    says, and the motion before that time is clear."""
+def test_every_plan_is_clear_and_every_contact_found_is_real(name: str) -> None:
+    """Random clear starts and goals among a random box. The straight motion (planned without the
+    world): where the clearance walk finds a contact, the pair it names is in contact at the
+    time it says and the motion before is clear; where it finds none, the motion is clear. The
+    plan with the world: clear along the whole motion (independently, at 1 mm steps), around
+    the box where the straight one hits it."""
     base = robots.load(name)
     rng = np.random.default_rng(sum(name.encode()) + 17)
-    made = refused = 0
+    made = hits = around = 0
     for trial in range(12):
         reach = float(np.linalg.norm(base.fk(base.neutral)))
         start, goal = clear_configs(base, rng, 2)
@@ -135,24 +137,36 @@ def test_every_plan_is_clear_or_refused_naming_a_real_contact(name: str) -> None
             if cm.first_contact(start) is None and cm.first_contact(goal) is None:
                 break
             start, goal = clear_configs(base, rng, 2)
-        step = 0.001 / float(np.max(arm.collision.travel))  # type: ignore[union-attr]
+        step = 0.001 / float(np.max(cm.travel))
         rate = float(rng.choice([5.0, 50.0]))
+        straight = planning.plan(_plain(arm), start, goal, rate_hz=rate)
+        hit = None
+        try:
+            check_clear(arm, straight.times, straight.position)
+        except CollisionError as e:
+            hit = e
+        if hit is not None:
+            hits += 1
+            assert hit.time is not None and hit.time > 0.0
+            pair_d = _pair_distance(arm, _at(straight, hit.time), hit.pair)
+            assert pair_d <= 1e-6, (trial, hit.pair, pair_d)
+            for t, q in along(straight.times, straight.position, step, until=hit.time - 1e-9):
+                assert distance(arm, q)[0] > -2.5e-5, (trial, t)  # (the time is found to 20 um of travel)
+        else:
+            for t, q in along(straight.times, straight.position, step):
+                assert distance(arm, q)[0] > -1e-9, (trial, t)
         try:
             tr = planning.plan(arm, start, goal, rate_hz=rate)
         except CollisionError as e:
-            refused += 1
-            assert e.time is not None and e.time > 0.0
-            tr = planning.plan(_plain(arm), start, goal, rate_hz=rate)  # the motion that was refused
-            pair_d = _pair_distance(arm, _at(tr, e.time), e.pair)
-            assert pair_d <= 1e-6, (trial, e.pair, pair_d)
-            for t, q in along(tr.times, tr.position, step, until=e.time - 1e-9):
-                assert distance(arm, q)[0] > -2.5e-5, (trial, t)  # (the time is found to 20 um of travel)
+            assert hit is not None and "no way around" in e.message, e.message
             continue
         made += 1
+        around += hit is not None
         for t, q in along(tr.times, tr.position, step):
             d, pair = distance(arm, q)
             assert d > -1e-9, (trial, t, pair, d)
-    assert made >= 3 and refused >= 1, (made, refused)
+        assert np.allclose(tr.position[-1], goal, atol=1e-9) and np.allclose(tr.position[0], start)
+    assert made >= 8 and hits >= 2 and around >= 1, (made, hits, around)
 
 
 def _plain(arm: robots.Robot) -> robots.Robot:
@@ -208,26 +222,60 @@ def test_a_thin_plate_between_two_clear_samples_is_found() -> None:
     assert 1 <= n <= 20
 
 
-def test_a_plan_through_a_box_is_refused_naming_the_pair_and_the_time() -> None:
-    """A crate on the way of a joint move and of a line: refused with ``collision``, the arm's
-    link and the crate named, the time inside the motion; the same move without it is planned."""
+def test_a_joint_move_goes_around_a_box_and_a_line_through_it_is_refused() -> None:
+    """A crate on the way: the joint move's straight path hits it, the plan goes around it (the
+    sampling planner), clear all the way, longer than the straight one; the line through the
+    crate is refused with ``collision``, the arm's link and the crate named, the time inside
+    the motion; the same moves without the crate are planned."""
     arm = robots.load("insomniac")
     start = arm.neutral.copy()
     start[0] = -0.8
     goal = start.copy()
     goal[0] = 0.8
     tip = arm.fk(arm.neutral)
-    clear = planning.plan(arm, start, goal)
-    # the joint move swings the tool round an arc through the tip at yaw 0, the line along its chord
-    for kwargs, x in (({}, tip[0]), ({"path": "line"}, tip[0] * math.cos(0.8))):
-        boxed = with_box(arm, (0.06, 0.06, 0.06), (float(x), 0.0, float(tip[2])))
-        g = goal if not kwargs else {"target": arm.fk(goal).tolist()}
-        planning.plan(arm, start, g, **kwargs)  # type: ignore[arg-type]
-        with pytest.raises(CollisionError) as e:
-            planning.plan(boxed, start, g, **kwargs)  # type: ignore[arg-type]
-        assert e.value.pair[1] == "crate" and e.value.pair[0] in boxed.collision.links  # type: ignore[union-attr]
-        assert e.value.time is not None and 0.0 < e.value.time < clear.duration * 2
-        assert f"t = {e.value.time:.4f} s" in e.value.message
+    straight = planning.plan(arm, start, goal)
+    boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0]), 0.0, float(tip[2])))
+    with pytest.raises(CollisionError):
+        check_clear(boxed, straight.times, straight.position)
+    tr = planning.plan(boxed, start, goal)
+    assert tr.duration > straight.duration and np.allclose(tr.position[-1], goal, atol=1e-9)
+    step = 0.001 / float(np.max(boxed.collision.travel))  # type: ignore[union-attr]
+    assert min(distance(boxed, q)[0] for _, q in along(tr.times, tr.position, step)) > 0.0
+    line_goal = {"target": arm.fk(goal).tolist()}
+    line = planning.plan(arm, start, line_goal, path="line")
+    # the line runs along the chord of the tool's arc: a crate on its middle
+    boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0] * math.cos(0.8)), 0.0, float(tip[2])))
+    with pytest.raises(CollisionError) as e:
+        planning.plan(boxed, start, line_goal, path="line")
+    assert e.value.pair[1] == "crate" and e.value.pair[0] in boxed.collision.links  # type: ignore[union-attr]
+    assert e.value.time is not None and 0.0 < e.value.time < line.duration
+    assert f"t = {e.value.time:.4f} s" in e.value.message
+
+
+def test_a_goal_no_path_is_found_to_is_refused_naming_the_pair_and_the_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    """When the sampling planner finds no way round in its time (here given 10 us), the plan is
+    refused naming the pair and the time of the straight move's contact; from a moving state
+    no way round is looked for."""
+    from armd.planning import sampling
+
+    arm = robots.load("insomniac")
+    start = arm.neutral.copy()
+    start[0] = -0.8
+    goal = start.copy()
+    goal[0] = 0.8
+    tip = arm.fk(arm.neutral)
+    boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0]), 0.0, float(tip[2])))
+    monkeypatch.setattr(sampling, "TIME", 1e-5)
+    with pytest.raises(CollisionError) as e:
+        planning.plan(boxed, start, goal)
+    assert e.value.pair[1] == "crate" and e.value.time is not None and e.value.time > 0.0
+    assert "no way around in 1e-05 s" in e.value.message
+    monkeypatch.undo()
+    moving = planning.JointState(start, np.full(arm.nq, 0.05), np.zeros(arm.nq))
+    with pytest.raises(CollisionError) as e:
+        planning.plan(boxed, moving, goal)
+    assert e.value.pair[1] == "crate"
+    assert planning.plan(boxed, start, goal).duration > 0.0  # (with its time, it finds one)
 
 
 def test_goals_that_collide_are_refused_naming_the_pair() -> None:

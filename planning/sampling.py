@@ -1,0 +1,109 @@
+"""A way around: OMPL's RRT-Connect in joint space, with coal's distances as its checker.
+
+When the straight joint move to a goal collides (:mod:`planning.clearance`), the sampling
+planner looks for a collision-free joint path from the start to the goal, then shortens it
+(OMPL's path simplifier: shortcuts, vertex reduction). A configuration is valid when it is
+within every joint limit (box and coupled) and every checked pair is more than :data:`MARGIN`
+apart (room for the timed motion's rounding of the corners); a motion between two
+configurations is valid when the clearance walk (:func:`planning.clearance.check_clear`)
+finds the straight joint move between them clear: the same certificate as every plan's, so
+the path found is clear along its whole length, not only at the configurations OMPL checked.
+The path is returned as its configurations (the start first, the goal last); the planner
+times it through them (:func:`planning.plan`).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import numpy as np
+from ompl import base as ob
+from ompl import geometric as og
+from ompl import util as ou
+
+from armd.errors import CollisionError
+from armd.robots import Robot
+from armd.robots.types import FloatArray
+
+from .clearance import check_clear
+
+MARGIN = 0.002  # [m]: the clearance a valid configuration keeps
+TIME = 1.0  # [s]: the longest the planner searches
+SHORTENING = 0.01  # [s]: the time the path simplifier is given
+
+ou.setLogLevel(ou.LogLevel.LOG_WARN)  # (OMPL logs every solve at INFO on stderr)
+_lock = threading.Lock()
+
+
+class _Motions(ob.MotionValidator):
+    """A straight joint move is valid when it ends within the limits and the clearance walk
+    finds it clear (the start: valid already, OMPL checked it)."""
+
+    def __init__(self, info: object, robot: Robot, n: int) -> None:
+        super().__init__(info)
+        self.robot, self.n = robot, n
+
+    def checkMotion(self, s1: object, s2: object, *_: object) -> bool:  # noqa: N802 (OMPL's name)
+        qa = np.array([s1[i] for i in range(self.n)])  # type: ignore[index]
+        qb = np.array([s2[i] for i in range(self.n)])  # type: ignore[index]
+        if not self.robot.limits.contains(qb, tol=0.0):
+            return False
+        try:
+            check_clear(self.robot, _ENDS, np.array([qa, qb]))
+        except CollisionError:
+            return False
+        return True
+
+
+_ENDS = np.array([0.0, 1.0])  # OMPL's random generators are not shared safely between threads: one search at a time
+
+
+def path_around(
+    robot: Robot, start: FloatArray, goal: FloatArray, *, time_limit: float | None = None
+) -> list[FloatArray] | None:
+    """A collision-free joint path from ``start`` to ``goal`` (both clear: see module notes),
+    shortened: its configurations, or None when none was found in ``time_limit`` [s] (None:
+    :data:`TIME`). A start or goal nearer than MARGIN to something lowers the margin to half
+    their clearance (an arm at rest 1 mm from a box may still leave it)."""
+    world = robot.collision
+    if world is None:
+        return [np.array(start, dtype=float), np.array(goal, dtype=float)]
+    lim = robot.limits
+    n = robot.nq
+    space = ob.RealVectorStateSpace(n)
+    bounds = ob.RealVectorBounds(n)
+    for i in range(n):
+        bounds.setLow(i, float(lim.lower[i]))
+        bounds.setHigh(i, float(lim.upper[i]))
+    space.setBounds(bounds)
+    setup = og.SimpleSetup(space)
+
+    margin = min(MARGIN, 0.5 * world.clearance(start)[0], 0.5 * world.clearance(goal)[0])
+
+    def valid(state: object) -> bool:
+        q = np.array([state[i] for i in range(n)])  # type: ignore[index]
+        return bool(lim.contains(q, tol=0.0)) and world.clearance(q)[0] > margin
+
+    setup.setStateValidityChecker(valid)
+    info = setup.getSpaceInformation()
+    motions = _Motions(info, robot, n)  # (kept alive here while OMPL holds it)
+    info.setMotionValidator(motions)
+    a, b = space.allocState(), space.allocState()
+    for i in range(n):
+        a[i] = float(start[i])
+        b[i] = float(goal[i])
+    setup.setStartAndGoalStates(a, b)
+    setup.setPlanner(og.RRTConnect(setup.getSpaceInformation()))
+    with _lock:
+        status = setup.solve(TIME if time_limit is None else time_limit)
+        if status.getStatus() != ob.PlannerStatus.EXACT_SOLUTION:
+            return None
+        setup.simplifySolution(SHORTENING)
+        path = setup.getSolutionPath()
+        out = [np.array([path.getState(k)[i] for i in range(n)]) for k in range(path.getStateCount())]
+    out[0], out[-1] = np.array(start, dtype=float), np.array(goal, dtype=float)  # (exactly: not via floats of OMPL's)
+    return [q for k, q in enumerate(out) if k == 0 or not math.isclose(float(np.max(np.abs(q - out[k - 1]))), 0.0)]
+
+
+__all__ = ["MARGIN", "SHORTENING", "TIME", "path_around"]
