@@ -162,6 +162,42 @@ def cmd_unlock(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_world(args: argparse.Namespace) -> int:
+    """List, add to or remove from an arm's world (its obstacles) on the service."""
+    add = []
+    for kind, specs in (("box", args.box), ("sphere", args.sphere), ("cylinder", args.cylinder)):
+        n = {"box": 3, "sphere": 1, "cylinder": 2}[kind]
+        for spec in specs or ():
+            name, *numbers = spec
+            try:
+                values = [float(x) for x in numbers]
+            except ValueError:
+                print(f"armd: error: --{kind} {' '.join(spec)}: NAME then {len(numbers)} numbers [m]", file=sys.stderr)
+                return 2
+            add.append({"name": name, "shape": kind, "position": values[:3], "size": values[3 : 3 + n]})
+    with _client(args) as c:
+        r = c.world(args.robot, add=add, remove=args.remove or (), clear=args.clear)
+    if args.json:
+        print(json.dumps(r, indent=2))
+        return 0
+    world = r["world"]
+    if world is None:
+        print(f"{args.robot}: no collision model (no world)")
+        return 0
+    ground = world["ground"]
+    print(f"{args.robot}: ground {'none' if ground is None else f'z = {ground:g} m'}")
+    fixed = set(r["fixed"])
+    for o in world["obstacles"]:
+        where = ", ".join(f"{x:g}" for x in o["position"])
+        size = ", ".join(f"{x:g}" for x in o["size"])
+        turned = "" if not any(o["rpy"]) else f", rpy [{', '.join(f'{x:g}' for x in o['rpy'])}]"
+        kept = " (robot.toml)" if o["name"] in fixed else ""
+        print(f"  {o['name']}: {o['shape']} [{size}] m at [{where}] m{turned}{kept}")
+    for a, b in r["contacts"]:
+        print(f"  in contact now: {a} and {b} (plans from here are refused)")
+    return 0
+
+
 def _client_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--connect", action="append", metavar="ENDPOINT", help="default tcp/127.0.0.1:7447")
     p.add_argument("--config", help="a Zenoh configuration file (JSON5)")
@@ -207,6 +243,18 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("robot")
     _client_args(p)
     p.set_defaults(func=cmd_stop)
+
+    p = sub.add_parser(
+        "world", parents=[log_args], help="an arm's obstacles on the service: list, --box/--sphere/--cylinder, --remove"
+    )
+    p.add_argument("robot")
+    p.add_argument("--box", nargs=7, action="append", metavar=("NAME", "X", "Y", "Z", "SX", "SY", "SZ"))
+    p.add_argument("--sphere", nargs=5, action="append", metavar=("NAME", "X", "Y", "Z", "R"))
+    p.add_argument("--cylinder", nargs=6, action="append", metavar=("NAME", "X", "Y", "Z", "R", "L"))
+    p.add_argument("--remove", action="append", metavar="NAME", help="an obstacle added before")
+    p.add_argument("--clear", action="store_true", help="remove every obstacle added at run time")
+    _client_args(p)
+    p.set_defaults(func=cmd_world)
 
     p = sub.add_parser(
         "estop", parents=[log_args], help="emergency stop, straight to the arm's adapters (no service needed)"

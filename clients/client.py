@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -374,6 +374,29 @@ class ArmClient:
     def gripper(self, robot: str, opening: float) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between."""
         return self.call(f"{robot}/gripper", {"opening": opening})
+
+    def world(
+        self,
+        robot: str,
+        *,
+        add: Sequence[Mapping[str, Any]] = (),
+        remove: Sequence[str] = (),
+        clear: bool = False,
+    ) -> dict[str, Any]:
+        """The arm's world (its floor and obstacles), after removing every run-time obstacle
+        (``clear``), those named in ``remove``, then adding ``add``: each
+        ``{"name", "shape": "box"|"sphere"|"cylinder", "size", "position", "rpy"}`` [m, rad] in
+        the base frame. All or nothing. Reply: ``world`` (``ground``, ``obstacles``, ``pairs``),
+        ``fixed`` (the obstacles of robot.toml, which stay) and ``contacts`` (what the arm
+        touches now, where the service knows it to be)."""
+        request: dict[str, Any] = {}
+        if add:
+            request["add"] = [dict(o) for o in add]
+        if remove:
+            request["remove"] = list(remove)
+        if clear:
+            request["clear"] = True
+        return self.call(f"{robot}/world", request)
 
     def wait_until_still(
         self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0, tolerance: float = 2e-3

@@ -6,15 +6,17 @@ motion checked is the polyline through the samples in joint space. Along it, a s
 ``dq`` moves no point of the arm farther than ``abs(dq) @ travel``
 (:attr:`robots.collision.CollisionModel.travel`), so a configuration whose shapes are ``d``
 apart from everything they are checked against clears every configuration within a travel
-``d`` of it (conservative advancement). The walk checks a configuration, skips what that
-clears, and never steps farther than :data:`RESOLUTION` where the clearance is smaller: no
-point of any link moves more than 5 mm between checks that are not already known clear, and
-every sample is either checked or within the clearance of one that was.
+``d`` of it (conservative advancement). The walk checks a configuration and steps on by its
+clearance ``d``, or by ``2 * CONTACT`` where ``d`` is smaller: every point of the motion is
+then within the clearance of a checked configuration, or within ``CONTACT`` of travel of one
+at least ``CONTACT`` clear: the whole motion is certified clear, not sampled (and no point of
+any link moves farther between two checks than the clearance at the first, or 20 um).
+A configuration nearer than :data:`CONTACT` (10 um: coal's distances are good to about a
+micrometre) to something counts as in contact.
 
-A contact raises :class:`~armd.errors.CollisionError` naming the pair and the time [s] (found
-within 5 mm of travel, then narrowed down by bisection to 20 um of travel: the first contact
-on the way, unless two come and go within 5 mm).
-Stops are never checked (a stop is never refused).
+A contact raises :class:`~armd.errors.CollisionError` naming the pair and the time [s]
+(narrowed down by bisection to 1/256 of the last step). Stops are never checked (a stop is
+never refused).
 """
 
 from __future__ import annotations
@@ -25,8 +27,8 @@ from armd.errors import CollisionError
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 
-RESOLUTION = 0.005  # [m]: the farthest any point of the arm moves between two checks not known clear
-BISECTIONS = 8  # a contact found is narrowed down to RESOLUTION / 2**8 (20 um) of travel
+CONTACT = 1e-5  # [m]: nearer than this counts as in contact (and the walk's step is at least twice it)
+BISECTIONS = 8  # a contact found is narrowed down to 1/256 of the step that found it
 
 
 def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str = "the motion") -> int:
@@ -55,14 +57,14 @@ def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str
         q, t = point(at)
         d, pair = world.clearance(q)
         checks += 1
-        if d <= 0.0 and pair is not None:
+        if d < CONTACT and pair is not None:
             if last_clear >= 0.0:  # somewhere after the last clear check: narrow it down
                 lo, hi = last_clear, at
                 for _ in range(BISECTIONS):
                     mid = 0.5 * (lo + hi)
                     dm, pm = world.clearance(point(mid)[0])
                     checks += 1
-                    if dm <= 0.0 and pm is not None:
+                    if dm < CONTACT and pm is not None:
                         hi, pair = mid, pm
                     else:
                         lo = mid
@@ -77,9 +79,7 @@ def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str
         if at + d >= end:
             return checks
         last_clear = at
-        step = at + max(d, RESOLUTION)
-        first_open = int(np.searchsorted(s, at + d, side="right"))  # the first sample not cleared
-        at = min(step, float(s[first_open])) if first_open < len(s) else min(step, end)
+        at = min(at + max(d, 2.0 * CONTACT), end)
 
 
-__all__ = ["RESOLUTION", "check_clear"]
+__all__ = ["CONTACT", "check_clear"]

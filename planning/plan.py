@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from armd.errors import BadRequest, CollisionError, TrajectoryTooLong
+from armd.errors import BadRequest, CollisionError, LimitError, TrajectoryTooLong
 from armd.robots import Robot
 from armd.robots.collision import GROUND
 from armd.robots.types import FloatArray
@@ -16,7 +16,7 @@ from . import sampling
 from .clearance import check_clear
 from .goal import goal_configuration, goal_point
 from .line import line_samples
-from .ruckig_path import RuckigPath, joint_path, stop_path, whole_cycles
+from .ruckig_path import RuckigPath, joint_path, stop_path, straight_path, whole_cycles
 from .state import JointState, clamped, joint_state
 from .trajectory import Trajectory, build
 
@@ -158,17 +158,16 @@ def _around(
             )
         vias += leg[1:]
         prev = goal
-    last: CollisionError = hit
-    for rest in (False, True):
-        rpath = joint_path(robot, s, vias, spd, 1.0 / rate, rest_at_vias=rest)
-        traj = _sampled(robot, "joint", rate, rpath, max_samples)
-        try:
-            check_clear(robot, traj.times, traj.position)
-        except CollisionError as e:
-            last = e
-            continue
+    try:  # through the path's configurations without stopping: clear and within the limits?
+        traj = _sampled(robot, "joint", rate, joint_path(robot, s, vias, spd, 1.0 / rate), max_samples)
+        check_clear(robot, traj.times, traj.position)
         return traj
-    raise last  # (not reached: at rest on each via the motion is the planner's own straight moves)
+    except (CollisionError, LimitError):
+        pass
+    # at rest on each: every segment the straight joint move the sampling planner checked
+    traj = _sampled(robot, "joint", rate, straight_path(robot, s.position, vias, spd, 1.0 / rate), max_samples)
+    check_clear(robot, traj.times, traj.position)
+    return traj
 
 
 def plan_stop(robot: Robot, state: object, *, rate_hz: float | None = None, clamp: bool = False) -> Trajectory:

@@ -10,7 +10,9 @@ would overshoot a position limit). Segment durations are whole control cycles
 
 Rest-to-rest segments use phase synchronisation: all joints move on the straight line in
 joint space between start and goal, which keeps linear (coupled) limits that hold at both
-ends satisfied everywhere between them.
+ends satisfied everywhere between them. Where Ruckig cannot synchronise the phases it falls
+back to time synchronisation, off the line (the safety gate checks every sample regardless);
+:func:`straight_path` times segments exactly on their lines (paths round obstacles).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import math
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import ruckig
@@ -240,12 +243,70 @@ def _otg(nq: int, dt: float) -> ruckig.Ruckig:
     return otg
 
 
-def joint_path(
-    robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float, dt: float, *, rest_at_vias: bool = False
-) -> RuckigPath:
+class _ScaledProfile:
+    """One joint's phases on a straight segment: the path parameter's profile times the joint's
+    share of the move (what RuckigPath's phase tables read of a Ruckig profile)."""
+
+    def __init__(self, base: ruckig.Profile, start: float, delta: float) -> None:
+        self.t = list(base.t)
+        self.j = [delta * x for x in base.j]
+        self.a = [delta * x for x in base.a]
+        self.v = [delta * x for x in base.v]
+        self.p = [start + delta * x for x in base.p]
+        self.brake, self.accel = base.brake, base.accel
+
+
+class _Straight:
+    """A rest-to-rest segment exactly on the straight joint move from ``start`` to ``goal``: one
+    jerk-limited Ruckig profile of the path parameter s in [0, 1] (q = start + s (goal - start)),
+    its limits the tightest of the joints' (each joint's v, a, j over its share). Ruckig's own
+    phase synchronisation falls back to time synchronisation, off the line, when it cannot
+    synchronise the phases (seen 0.06 rad off); a path round an obstacle must stay on it."""
+
+    def __init__(self, start: FloatArray, goal: FloatArray, limits: Limits, dt: float) -> None:
+        self.start, self.delta = np.array(start, dtype=float), np.asarray(goal, dtype=float) - start
+        share = np.abs(self.delta)
+        moving = share > 0.0
+        inp = ruckig.InputParameter(1)
+        inp.current_position, inp.target_position = [0.0], [1.0]
+        inp.max_velocity = [float(np.min(limits.velocity[moving] / share[moving]))]
+        inp.max_acceleration = [float(np.min(limits.acceleration[moving] / share[moving]))]
+        inp.max_jerk = [float(np.min(limits.jerk[moving] / share[moving]))]
+        inp.duration_discretization = ruckig.DurationDiscretization.Discrete
+        self.scalar = ruckig.Trajectory(1)
+        calculate(_otg(1, dt), inp, self.scalar)
+        self.duration = self.scalar.duration
+        base = self.scalar.profiles[0][0]
+        self.profiles = [
+            [_ScaledProfile(base, float(p0), float(d)) for p0, d in zip(self.start, self.delta, strict=True)]
+        ]
+
+    def at_time(self, t: float) -> tuple[list[float], list[float], list[float]]:
+        p, v, a = self.scalar.at_time(t)
+        return (
+            (self.start + p[0] * self.delta).tolist(),
+            (v[0] * self.delta).tolist(),
+            (a[0] * self.delta).tolist(),
+        )
+
+
+def straight_path(robot: Robot, start: FloatArray, points: Sequence[FloatArray], speed: float, dt: float) -> RuckigPath:
+    """From rest at ``start`` through every point at rest, each segment exactly the straight joint
+    move between its ends (:class:`_Straight`): a joint path the clearance of whose straight
+    moves was checked keeps it once timed."""
+    limits = Limits.of(robot, speed)
+    segments: list[Any] = []
+    prev = np.asarray(start, dtype=float)
+    for point in points:
+        if np.any(np.asarray(point) != prev):
+            segments.append(_Straight(prev, point, limits, dt))
+            prev = np.asarray(point, dtype=float)
+    return RuckigPath(segments, robot.nq)
+
+
+def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], speed: float, dt: float) -> RuckigPath:
     """Through every goal in order, ending at rest on the last; waypoints passed without
-    stopping where that is possible (``rest_at_vias``: at rest on each, so that from a start at
-    rest every segment is the straight joint move between its ends)."""
+    stopping where that is possible."""
     limits = Limits.of(robot, speed)
     otg = _otg(robot.nq, dt)
     segments: list[ruckig.Trajectory] = []
@@ -272,7 +333,7 @@ def joint_path(
             prev = state.position
     for k, goal in enumerate(goals):
         last = k == len(goals) - 1
-        v = np.zeros(robot.nq) if last or rest_at_vias else _pass_velocity(prev, goal, goals[k + 1], limits)
+        v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
         traj = _segment(otg, state, goal, v, limits)
         if not last and any(v.tolist()) and not _within(traj, robot, dt):  # passing would overshoot: stop there
             v = np.zeros(robot.nq)

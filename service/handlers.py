@@ -13,6 +13,7 @@ answered with success, whatever the clock says.
 from __future__ import annotations
 
 import dataclasses
+import threading
 import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -21,6 +22,7 @@ from armd import planning, solvers
 from armd.errors import ArmdError, BadRequest, BatchTooLarge, NoAdapter, PositionUnknown, Rejected, StartMismatch
 from armd.planning import JointState
 from armd.robots import Robot
+from armd.robots.collision import SIZES, Obstacle
 
 from .deadline import Deadline
 from .protocol import (
@@ -28,10 +30,12 @@ from .protocol import (
     GRIPPER,
     IK_BATCH,
     IK_ONE,
+    MAX_OBSTACLES,
     MOVE,
     NOTHING,
     PLAN,
     PROTOCOL_VERSION,
+    WORLD,
     Limits,
     check,
 )
@@ -59,6 +63,11 @@ class Handlers:
         self.limits = limits
         self.publish = publish
         self.adapters = adapters
+        self._world_lock = threading.Lock()  # (world changes, one at a time)
+        self._fixed: dict[str, frozenset[str]] = {}  # an arm's obstacles from robot.toml
+        for arm in self.arms.values():
+            if arm.collision is not None:
+                self._fixed[arm.name] = frozenset(o.name for o in arm.collision.obstacles)
 
     # -- read-only verbs -------------------------------------------------------------------
 
@@ -205,6 +214,54 @@ class Handlers:
         self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": uuid.uuid4().hex})
         return {"opening": opening, "pulse": pulse}
 
+    # -- the arm's world ---------------------------------------------------------------------
+
+    def world(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """The arm's world: its floor and obstacles, listed (an empty request); obstacles added
+        (``add``), removed by name (``remove``), the run-time ones all removed (``clear``), in
+        that order, all or nothing. Obstacles of ``robot.toml`` are fixed. Plans and IK asked
+        after the reply see the new world; the reply lists it, and what the arm, where the service
+        knows it to be, touches in it now (``contacts``: plans from there are refused)."""
+        req = check(WORLD, req)
+        changing = bool(req.get("add") or req.get("remove") or req.get("clear"))
+        with self._world_lock:
+            model = arm.collision
+            if model is None:
+                if changing:
+                    raise BadRequest(
+                        f"{arm.name} has no collision model (its URDF's collision shapes could not be read): "
+                        "it has no world to change",
+                        field=next(k for k in ("add", "remove", "clear") if req.get(k)),
+                    )
+                return {"world": None, "fixed": [], "contacts": []}
+            fixed = self._fixed.setdefault(arm.name, frozenset(o.name for o in model.obstacles))
+            obstacles = [o for o in model.obstacles if o.name in fixed or not req.get("clear")]
+            for i, name in enumerate(req.get("remove", [])):
+                field = f"remove[{i}]"
+                if name in fixed:
+                    raise BadRequest(f"{field}: {name!r} is fixed in {arm.name}'s robot.toml", field=field)
+                if not any(o.name == name for o in obstacles):
+                    raise BadRequest(f"{field}: {arm.name}'s world has no obstacle {name!r}", field=field)
+                obstacles = [o for o in obstacles if o.name != name]
+            links = set(model.links) - {o.name for o in model.obstacles}  # (the links and the ground)
+            for i, spec in enumerate(req.get("add", [])):
+                obstacles.append(_obstacle(spec, f"add[{i}]", links | {o.name for o in obstacles}))
+            if len(obstacles) - len(fixed) > MAX_OBSTACLES:
+                raise BadRequest(
+                    f"at most {MAX_OBSTACLES} obstacles may be added to an arm's world, this would make "
+                    f"{len(obstacles) - len(fixed)}",
+                    field="add",
+                )
+            if changing:
+                model = model.with_obstacles(obstacles)
+                arm.collision = model  # (one assignment: a request sees the old world or the new one)
+        here = self.book.current(arm).state.position
+        return {
+            "world": model.describe(),
+            "fixed": sorted(fixed),
+            "contacts": [[c.first, c.second] for c in model.contacts(here)],
+        }
+
     # -- helpers ----------------------------------------------------------------------------
 
     def _plan(self, arm: Robot, req: Mapping[str, Any], start: object, deadline: Deadline) -> planning.Trajectory:
@@ -233,6 +290,29 @@ class Handlers:
         msg = traj.to_dict()
         msg.update({"id": uuid.uuid4().hex, "kind": kind})
         return msg
+
+
+def _obstacle(spec: Mapping[str, Any], field: str, taken: set[str]) -> Obstacle:
+    """An obstacle of the ``world`` verb (its shape checked already): its size's length, its
+    name not taken by a link, the ground or another obstacle."""
+    name, shape, size = spec["name"], spec["shape"], spec["size"]
+    if name in taken:
+        raise BadRequest(
+            f"{field}.name: {name!r} is taken (by a link, the ground or another obstacle)", field=f"{field}.name"
+        )
+    want = SIZES[shape]
+    if len(size) != want:
+        what = {"box": "[x, y, z]", "sphere": "[radius]", "cylinder": "[radius, length]"}[shape]
+        raise BadRequest(
+            f"{field}.size: a {shape} takes {want} number(s) {what} [m], got {len(size)}", field=f"{field}.size"
+        )
+    return Obstacle(
+        name,
+        shape,
+        tuple(float(x) for x in size),
+        tuple(float(x) for x in spec["position"]),  # type: ignore[arg-type]
+        tuple(float(x) for x in spec.get("rpy", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
+    )
 
 
 def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:

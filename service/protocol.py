@@ -23,7 +23,7 @@ import orjson
 from armd.errors import ArmdError, BadRequest, PayloadTooLarge
 
 PROTOCOL_VERSION = 1
-VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper")
+VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper", "world")
 ENVELOPE = ("protocol", "deadline")  # fields any request may carry, whatever its verb
 
 
@@ -525,3 +525,30 @@ IK_BATCH = Obj(
 PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),), top=True)
 MOVE = Obj(_MOTION, required=PLAN.required, top=True)
 GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)
+SHAPES = ("box", "sphere", "cylinder")  # robots.collision.SIZES (tests check they agree)
+MIN_SIZE = 0.0005  # [m] an obstacle's smallest dimension
+MAX_OBSTACLES = 64  # obstacles added at run time, per arm
+OBSTACLE = Obj(
+    {
+        "name": Word(),
+        "shape": Word(SHAPES),
+        "size": ListOf(Num("m", MIN_SIZE, MAX_METRES), min_items=1, items_are="sizes [m]"),
+        "position": POINT,
+        "rpy": Vec(3, "rad", MAX_RADIANS),
+    },
+    required=(
+        ("name", "a name of its own"),
+        ("shape", "'box', 'sphere' or 'cylinder'"),
+        ("size", "[x, y, z] (box), [radius] (sphere) or [radius, length] (cylinder) in metres"),
+        ("position", "its centre [x, y, z] in metres, in the base frame"),
+    ),
+    what='an obstacle {"name", "shape", "size", "position", "rpy"}',
+)
+WORLD = Obj(
+    {
+        "add": ListOf(OBSTACLE, min_items=1, items_are="obstacles"),
+        "remove": ListOf(Word(), min_items=1, items_are="obstacle names"),
+        "clear": Flag(),
+    },
+    top=True,
+)

@@ -33,6 +33,7 @@ on, and work that overruns it is abandoned and answered ``deadline`` with nothin
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import threading
@@ -93,7 +94,9 @@ class Service:
         workers: int = 4,
     ) -> None:
         self.session = session
-        self.arms = dict(arms)
+        # each arm copied (its solver state shared): the world verb changes this service's copy,
+        # never the caller's robot (tests and embedders pass robots.load()'s, shared in-process)
+        self.arms = {name: copy.copy(arm) for name, arm in arms.items()}
         self.prefix = prefix.rstrip("/")
         self.id = uuid.uuid4().hex[:12]
         self.book = StateBook()

@@ -37,13 +37,13 @@ _masks: weakref.WeakKeyDictionary[CollisionModel, np.ndarray] = weakref.WeakKeyD
 _lock = threading.Lock()
 
 
-def clear(arm: ArmState, result: IKResult, alternatives: Callable[[], Iterable[Branch]]) -> IKResult:
-    """``result`` made collision-free (the module's doc). ``alternatives()``: other
-    configurations on the target, preferred first (the closed form's at other pitches, the
-    numerical IK's from clear starts), tried in turn when every branch of ``result`` collides."""
-    world = arm.robot.collision
-    if world is None:
-        return result
+def clear(
+    arm: ArmState, world: CollisionModel, result: IKResult, alternatives: Callable[[], Iterable[Branch]]
+) -> IKResult:
+    """``result`` made collision-free in ``world`` (the module's doc; the robot's own, which
+    is not always ``arm.robot``'s: a copy of a robot shares its solver state). ``alternatives()``:
+    other configurations on the target, preferred first (the closed form's at other pitches,
+    the numerical IK's from clear starts), tried in turn when every branch of ``result`` collides."""
     if world.ground is not None and float(result.target[2]) < world.ground:
         depth = world.ground - float(result.target[2])
         return result._replace(

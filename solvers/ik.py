@@ -36,6 +36,7 @@ import numpy as np
 from armd.errors import BadRequest
 from armd.robots import Robot
 from armd.robots.angles import wrap
+from armd.robots.collision import CollisionModel
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_point
@@ -113,7 +114,7 @@ def solve_ik(
         result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
     world = robot.collision if collisions else None
     if world is not None:
-        result = clear(arm, result, lambda: _alternatives(arm, point, pitch, ref, tolerance))
+        result = clear(arm, world, result, lambda: _alternatives(arm, world, point, pitch, ref, tolerance))
     if quantise:
         result = _quantise(arm, result, tolerance)
         hit = None if world is None or result.status == COLLISION else world.first_contact(result.q)
@@ -408,15 +409,13 @@ def _closest_result(
 
 
 def _alternatives(
-    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
+    arm: ArmState, world: CollisionModel, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
 ) -> Iterator[Branch]:
     """Configurations on ``point`` other than the first answer's branches, preferred first, for
     when they all collide (:func:`solvers.clearance.clear`): with a free pitch, the closed form's
     branches at the other pitches, nearest the preferred one first; then the numerical IK from
     the clear atlas configurations nearest the target (other wrist rolls; an arm outside the
     family)."""
-    world = arm.robot.collision
-    assert world is not None
     if arm.arrays is not None and pitch is None and arm.robot.chooses_pitch:
         b = arm.buffers
         for p in pitches(float(FREE_PITCHES[0])):

@@ -116,7 +116,7 @@ def test_each_arms_adapter_hears_and_speaks_for_its_own_arm(roles: Callable[[str
 # -- and what each may not ---------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("verb", ["move", "stop", "gripper"])
+@pytest.mark.parametrize("verb", ["move", "stop", "gripper", "world"])  # (world: changes what plans do)
 def test_a_guest_cannot_ask_a_verb_that_moves(roles: Callable[[str], zenoh.Session], verb: str) -> None:
     service, guest = roles("service"), roles("guest")
     assert not answered(guest, f"armd/desk4/{verb}", service)

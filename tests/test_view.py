@@ -31,7 +31,7 @@ from armd.adapters.sim import SimAdapter
 from armd.errors import BadRequest, ViewerError
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
-from armd.tools.view import CAMERA_FOV, PATH_COLOR, TARGET_COLOR, ArmView, ZenohFeed
+from armd.tools.view import CAMERA_FOV, OBSTACLE_COLOR, PATH_COLOR, TARGET_COLOR, ArmView, ZenohFeed
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -182,6 +182,31 @@ def test_the_arm_is_drawn_where_fk_puts_it_and_follows_the_state(
     # no trajectory yet: nothing of the path's or the target's colour
     for img in (*shots.values(), background):
         assert colored(img, PATH_COLOR).sum() == 0 and colored(img, TARGET_COLOR).sum() == 0
+
+
+@needs_chromium
+def test_obstacles_added_on_the_service_are_drawn_where_they_are(
+    insomniac_view: tuple[ArmView, ZenohFeed], client: object, tmp_path: Path
+) -> None:
+    """An obstacle added over the ``world`` verb is drawn (the feed polls the service's info),
+    centred where it is; cleared, it is gone."""
+    view, feed = insomniac_view
+    centre = [0.05, -0.25, 0.1]
+    try:
+        client.world(  # type: ignore[attr-defined]
+            "insomniac", add=[{"name": "crate", "shape": "box", "size": [0.08, 0.08, 0.08], "position": centre}]
+        )
+        wait_for(lambda: [o["name"] for o in view.obstacles] == ["crate"], 10.0, "the crate to be drawn")
+        orange = colored(screenshot(view.url, tmp_path / "crate.png"), OBSTACLE_COLOR)
+        ys, xs = np.nonzero(orange)
+        assert orange.sum() > 200, f"only {orange.sum()} pixels of the crate"
+        cx, cy = project(view, np.array(centre))
+        assert math.hypot(xs.mean() + 0.5 - cx, ys.mean() + 0.5 - cy) < 12.0, "the crate is not drawn where it is"
+    finally:
+        client.world("insomniac", clear=True)  # type: ignore[attr-defined]
+    wait_for(lambda: view.obstacles == [], 10.0, "the crate to go")
+    assert colored(screenshot(view.url, tmp_path / "cleared.png"), OBSTACLE_COLOR).sum() == 0
+    assert feed.worlds == 2
 
 
 @needs_chromium

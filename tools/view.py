@@ -50,6 +50,8 @@ CAMERA_FOV = 75.0  # [deg] meshcat's default camera: vertical field of view
 CAMERA_DIRECTION = (0.55, -1.0, 0.5)  # from the scene centre towards the camera, in the arm's base frame
 PATH_COLOR = 0xFF00FF  # the tool path: flat (unlit) magenta, distinct from every arm's colours
 TARGET_COLOR = 0x00C853  # the target: flat green
+OBSTACLE_COLOR = 0xFF6D00  # the world's obstacles: flat orange
+WORLD_POLL = 1.0  # [s] how often the feed asks the service's info for the arm's world
 PATH_RADIUS = 0.003  # [m]
 TARGET_RADIUS = 0.015  # [m]: shows round the tool of an arm that reached it
 GRID_STEP = 0.1  # [m] the floor grid's squares
@@ -351,6 +353,42 @@ class ArmView:
         self._pin.initViewer(viewer=self._vis)
         self._pin.loadViewerModel(rootNodeName="armd/arm")
         self._pin.display(self.robot.neutral)
+        world = self.robot.collision
+        self.obstacles: list[dict[str, Any]] = []
+        self._draw_world([] if world is None else world.describe()["obstacles"])  # type: ignore[arg-type]
+
+    def show_world(self, obstacles: Sequence[dict[str, Any]]) -> None:
+        """Draw these obstacles (``{"name", "shape", "size", "position", "rpy"}``, as the
+        protocol's ``world`` and ``info`` give them) in place of those drawn."""
+        with self._draw_lock:
+            self._draw_world(obstacles)
+
+    def _draw_world(self, obstacles: Sequence[dict[str, Any]]) -> None:
+        import meshcat.geometry as g
+        import pinocchio as pin
+
+        self._vis["armd/world"].delete()
+        material = g.MeshBasicMaterial(color=OBSTACLE_COLOR)
+        for k, o in enumerate(obstacles):
+            size = [float(x) for x in o["size"]]
+            shape = o["shape"]
+            turn = np.eye(4)
+            if shape == "box":
+                geometry = g.Box(size)
+            elif shape == "sphere":
+                geometry = g.Sphere(size[0])
+            elif shape == "cylinder":
+                geometry = g.Cylinder(size[1], size[0])
+                turn[:3, :3] = pin.rpy.rpyToMatrix(math.pi / 2, 0.0, 0.0)  # (meshcat's cylinders stand on y)
+            else:
+                raise BadRequest(f"obstacles[{k}].shape: no drawing for {shape!r}", field=f"obstacles[{k}].shape")
+            placed = np.eye(4)
+            placed[:3, :3] = pin.rpy.rpyToMatrix(*[float(x) for x in o.get("rpy", (0.0, 0.0, 0.0))])
+            placed[:3, 3] = [float(x) for x in o["position"]]
+            node = self._vis[f"armd/world/{k}"]
+            node.set_object(geometry, material)
+            node.set_transform(placed @ turn)
+        self.obstacles = [dict(o) for o in obstacles]
 
     def _framing(self) -> tuple[FloatArray, FloatArray, float]:
         """The scene centre and a camera position [m] in ``base``, and the arm's reach [m].
@@ -544,7 +582,8 @@ def _target_of(msg: dict[str, Any]) -> Any:
 
 class ZenohFeed:
     """Shows ``view`` what the network says about its arm: every state on
-    ``<prefix>/<robot>/state`` and every trajectory on ``<prefix>/<robot>/trajectory``."""
+    ``<prefix>/<robot>/state``, every trajectory on ``<prefix>/<robot>/trajectory``, and the
+    arm's world as the service's ``info`` gives it (polled every WORLD_POLL seconds)."""
 
     def __init__(self, view: ArmView, session: zenoh.Session, *, prefix: str = "armd") -> None:
         self.view = view
@@ -556,6 +595,29 @@ class ZenohFeed:
             session.declare_subscriber(f"{self.base}/state", self._on_state),
             session.declare_subscriber(f"{self.base}/trajectory", self._on_trajectory),
         ]
+        self.session = session
+        self.worlds = 0  # changes of the arm's world drawn
+        self._closed = threading.Event()
+        self._poller = threading.Thread(target=self._poll_world, name=f"world-{view.robot.name}", daemon=True)
+        self._poller.start()
+
+    def _poll_world(self) -> None:
+        """The arm's world as the service has it (obstacles added at run time: the ``world``
+        verb), from ``info`` every WORLD_POLL seconds (a guest may ask it), redrawn on a change."""
+        while not self._closed.wait(WORLD_POLL):
+            try:
+                replies = list(self.session.get(f"{self.base}/info", timeout=WORLD_POLL))
+                ok = [r.ok for r in replies if r.ok is not None]
+                if not ok:
+                    continue
+                world = json.loads(ok[0].payload.to_bytes()).get("world") or {}
+                obstacles = world.get("obstacles", [])
+                if obstacles != self.view.obstacles:
+                    self.view.show_world(obstacles)
+                    self.worlds += 1
+                    log.info("%s: world drawn (%d obstacles)", self.base, len(obstacles))
+            except Exception:  # (the service gone, the session closing, a bad reply: try again later)
+                log.debug("world poll failed", exc_info=True)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         self.states += 1
@@ -588,6 +650,9 @@ class ZenohFeed:
         )
 
     def close(self) -> None:
+        self._closed.set()
+        if self._poller.is_alive() and self._poller is not threading.current_thread():
+            self._poller.join(timeout=2 * WORLD_POLL + 1.0)
         for sub in self._subs:
             try:
                 sub.undeclare()
@@ -602,4 +667,4 @@ class ZenohFeed:
         self.close()
 
 
-__all__ = ["DEFAULT_PORT", "HOST", "ArmView", "ViewerError", "ZenohFeed"]
+__all__ = ["DEFAULT_PORT", "HOST", "OBSTACLE_COLOR", "ArmView", "ViewerError", "ZenohFeed"]
