@@ -428,12 +428,51 @@ def _alternatives(
                 yield from (Branch(n, q, e) for n, q, e in rows if e <= tolerance)
             else:
                 yield from _refined(arm, rows, point, p, tolerance)[0]
+    yield from _rolled(arm, point, pitch, ref, tolerance)
     w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
     for start in clear_starts(arm, world, point, _NUMERICAL_STARTS):
         q = np.empty(arm.robot.nq)
         err, perr, _, _ = _chain_solve(arm, point, 0.0 if pitch is None else pitch, w2, start, start, 0, tolerance, q)
         if err <= tolerance and (pitch is None or perr <= PITCH_TOLERANCE):
             yield Branch("numerical", q, err)
+
+
+ROLL_STEP = math.pi / 12  # [rad] the other wrist rolls tried when every branch collides
+ROLLED_PITCHES = 8  # ... at the preferred pitch and this many nearest it (a free pitch)
+
+
+def _rolled(
+    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
+) -> Iterator[Branch]:
+    """For an arm whose wrist roll turns the tool about its own axis without moving the tool
+    point: the closed form's branches with the roll turned (every ROLL_STEP within its limits,
+    nearest the seed's first): the gripper turned may clear what it hit."""
+    rj = arm.robot.roll_joint
+    if arm.arrays is None or rj is None or arm.rolls_tool:
+        return
+    i = rj.index
+    lo, hi = float(arm.robot.limits.lower[i]), float(arm.robot.limits.upper[i])
+    r0 = float(ref[i])
+    rolls = [r0 + sign * k * ROLL_STEP for k in range(1, 13) for sign in (1.0, -1.0)]
+    rolls = [r for r in rolls if lo <= r <= hi]
+    if pitch is not None:
+        tried = [pitch]
+    elif arm.robot.chooses_pitch:
+        tried = [float(FREE_PITCHES[0]), *pitches(float(FREE_PITCHES[0]))[:ROLLED_PITCHES]]
+    else:
+        tried = [float(FREE_PITCHES[0])]
+    b = arm.buffers
+    rows: list[tuple[str, FloatArray, float]] = []
+    for p in tried:
+        code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
+        if code == EXACT or (pitch is None and code != NONE):
+            names = [BRANCH_NAMES[k] for k in b.ids.tolist()[:m]]
+            rows += [(names[r], b.qs[r].copy(), float(b.errs[r])) for r in range(m) if float(b.errs[r]) <= tolerance]
+    for roll in rolls:
+        for name, q, err in rows:
+            turned = q.copy()
+            turned[i] = roll
+            yield Branch(name, turned, err)
 
 
 # -- arms outside the family -------------------------------------------------------------

@@ -322,3 +322,22 @@ def test_an_arm_whose_collision_mesh_cannot_be_read_still_loads(
         arm = robots.load_folder(arm_copy("insomniac", urdf_edits=[(box, mesh)], as_name="m"))
     assert arm.collision is None and any("cannot be loaded" in r.getMessage() for r in caplog.records)
     assert solvers.solve_ik(arm, arm.fk(arm.neutral)).status == "ok"
+
+
+def test_a_target_reachable_only_with_the_gripper_turned_is_found() -> None:
+    """Insomniac beside a box: at the seed's wrist roll (0) every branch at every pitch puts the
+    gripper in the box; turned (the truth has -1.12 rad) it clears it. The answer is ``ok``,
+    clear, on the target (bench/collision.py's IK table found it missing, 1 target in 1,500)."""
+    arm = robots.load_folder(robots.CATALOGUE_DIR / "insomniac")
+    arm.collision = arm.collision.with_obstacles(  # type: ignore[union-attr]
+        [Obstacle("box1", "box", (0.06, 0.06, 0.06), (0.0, -0.22986, 0.29335))]
+    )
+    truth = np.array([-1.388, 1.6788, -1.3167, -0.8294, -1.1182])
+    assert arm.collision.first_contact(truth) is None  # type: ignore[union-attr]
+    target = arm.fk(truth)
+    level = truth.copy()
+    level[4] = 0.0
+    assert arm.collision.first_contact(level) is not None  # (the seed's roll collides)
+    r = solvers.solve_ik(arm, target)
+    assert r.status == "ok" and r.position_error < 1e-9 and arm.collision.first_contact(r.q) is None  # type: ignore[union-attr]
+    assert abs(r.q[4]) > 0.1  # turned
