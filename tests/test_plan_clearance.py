@@ -22,28 +22,42 @@ from armd.robots.collision import GROUND, Obstacle
 ARMS = robots.names()
 
 
-def distance(arm: robots.Robot, q: np.ndarray) -> tuple[float, tuple[str, str]]:
-    """The smallest distance between a checked pair at ``q`` and the pair, from scratch."""
+def distances(arm: robots.Robot, q: np.ndarray) -> dict[tuple[str, str], float]:
+    """Each checked pair's distance at ``q`` [m], from scratch: Pinocchio data made for ``q``
+    alone, coal's distance between the two shapes so placed."""
     cm = arm.collision
     assert cm is not None
     data, gdata = cm.model.createData(), pin.GeometryData(cm.geometry)
     pin.updateGeometryPlacements(cm.model, data, cm.geometry, gdata, q)
     objs = cm.geometry.geometryObjects
-    best, pair = math.inf, ("", "")
+    out = {}
     for k, cp in enumerate(cm.geometry.collisionPairs):
         a, b = cp.first, cp.second
-        request, result = coal.DistanceRequest(), coal.DistanceResult()
-        d = coal.distance(
+        out[(cm.pairs[k].first, cm.pairs[k].second)] = coal.distance(
             objs[a].geometry,
             coal.Transform3s(gdata.oMg[a].rotation, gdata.oMg[a].translation),
             objs[b].geometry,
             coal.Transform3s(gdata.oMg[b].rotation, gdata.oMg[b].translation),
-            request,
-            result,
+            coal.DistanceRequest(),
+            coal.DistanceResult(),
         )
-        if d < best:
-            best, pair = d, (cm.pairs[k].first, cm.pairs[k].second)
-    return best, pair
+    return out
+
+
+def distance(arm: robots.Robot, q: np.ndarray) -> tuple[float, tuple[str, str]]:
+    """The smallest distance between a checked pair at ``q`` and the pair, from scratch."""
+    pair, d = min(distances(arm, q).items(), key=lambda kv: kv[1])
+    return d, pair
+
+
+def swing(arm: robots.Robot, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """The neutral pose turned to yaw -``yaw`` and +``yaw`` [rad]: a move that sweeps the tool
+    round an arc through the neutral tool point."""
+    start = arm.neutral.copy()
+    start[0] = -yaw
+    goal = start.copy()
+    goal[0] = yaw
+    return start, goal
 
 
 def along(times: np.ndarray, P: np.ndarray, step: float, until: float = math.inf):  # type: ignore[no-untyped-def]
@@ -184,33 +198,14 @@ def _at(tr: planning.Trajectory, t: float) -> np.ndarray:
 
 
 def _pair_distance(arm: robots.Robot, q: np.ndarray, pair: tuple[str, str]) -> float:
-    cm = arm.collision
-    assert cm is not None
-    k = [(p.first, p.second) for p in cm.pairs].index(tuple(pair))
-    data, gdata = cm.model.createData(), pin.GeometryData(cm.geometry)
-    pin.updateGeometryPlacements(cm.model, data, cm.geometry, gdata, q)
-    cp = cm.geometry.collisionPairs[k]
-    objs = cm.geometry.geometryObjects
-    return float(
-        coal.distance(
-            objs[cp.first].geometry,
-            coal.Transform3s(gdata.oMg[cp.first].rotation, gdata.oMg[cp.first].translation),
-            objs[cp.second].geometry,
-            coal.Transform3s(gdata.oMg[cp.second].rotation, gdata.oMg[cp.second].translation),
-            coal.DistanceRequest(),
-            coal.DistanceResult(),
-        )
-    )
+    return float(distances(arm, q)[tuple(pair)])  # type: ignore[index]
 
 
 def test_a_thin_plate_between_two_clear_samples_is_found() -> None:
     """Two samples, both clear, on either side of a 2 mm plate the arm sweeps through: the check
     between them finds it (the samples alone would not)."""
     base = robots.load("insomniac")
-    qa = base.neutral.copy()
-    qa[0] = -0.4
-    qb = qa.copy()
-    qb[0] = 0.4
+    qa, qb = swing(base, 0.4)
     tip = base.fk(base.neutral)
     arm = with_box(base, (0.3, 0.002, 0.3), (float(tip[0]) * 0.8, 0.0, float(tip[2])))
     assert arm.collision.first_contact(qa) is None and arm.collision.first_contact(qb) is None  # type: ignore[union-attr]
@@ -228,10 +223,7 @@ def test_a_joint_move_goes_around_a_box_and_a_line_through_it_is_refused() -> No
     crate is refused with ``collision``, the arm's link and the crate named, the time inside
     the motion; the same moves without the crate are planned."""
     arm = robots.load("insomniac")
-    start = arm.neutral.copy()
-    start[0] = -0.8
-    goal = start.copy()
-    goal[0] = 0.8
+    start, goal = swing(arm, 0.8)
     tip = arm.fk(arm.neutral)
     straight = planning.plan(arm, start, goal)
     boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0]), 0.0, float(tip[2])))
@@ -259,10 +251,7 @@ def test_a_goal_no_path_is_found_to_is_refused_naming_the_pair_and_the_time(monk
     from armd.planning import sampling
 
     arm = robots.load("insomniac")
-    start = arm.neutral.copy()
-    start[0] = -0.8
-    goal = start.copy()
-    goal[0] = 0.8
+    start, goal = swing(arm, 0.8)
     tip = arm.fk(arm.neutral)
     boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0]), 0.0, float(tip[2])))
     monkeypatch.setattr(sampling, "TIME", 1e-5)

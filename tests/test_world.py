@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_plan_clearance import swing
 
 from armd import robots
 from armd.clients import ArmClient
@@ -36,10 +37,7 @@ def test_obstacles_added_listed_seen_and_removed(armd: ArmClient) -> None:
     arm = robots.load("insomniac")
     empty = armd.world("insomniac")
     assert empty["world"]["obstacles"] == [] and empty["world"]["ground"] == 0.0 and empty["contacts"] == []
-    start = arm.neutral.copy()
-    start[0] = -0.8
-    goal = start.copy()
-    goal[0] = 0.8
+    start, goal = swing(arm, 0.8)
     straight = armd.plan("insomniac", list(goal), start=list(start))
     r = armd.world(
         "insomniac",
