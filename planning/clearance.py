@@ -82,4 +82,16 @@ def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str
         at = min(at + max(d, 2.0 * CONTACT), end)
 
 
-__all__ = ["CONTACT", "check_clear"]
+def clear_move(robot: Robot, a: FloatArray, b: FloatArray) -> bool:
+    """Whether the straight joint move from ``a`` to ``b`` is clear of the arm's world."""
+    try:
+        check_clear(robot, _ENDS, np.array([a, b]))
+    except CollisionError:
+        return False
+    return True
+
+
+_ENDS = np.array([0.0, 1.0])
+
+
+__all__ = ["CONTACT", "check_clear", "clear_move"]

@@ -22,41 +22,36 @@ from ompl import base as ob
 from ompl import geometric as og
 from ompl import util as ou
 
-from armd.errors import CollisionError
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 
-from .clearance import check_clear
+from .clearance import clear_move
 
 MARGIN = 0.002  # [m]: the clearance a valid configuration keeps
 TIME = 1.0  # [s]: the longest the planner searches
 SHORTENING = 0.01  # [s]: the time the path simplifier is given
 
 ou.setLogLevel(ou.LogLevel.LOG_WARN)  # (OMPL logs every solve at INFO on stderr)
-_lock = threading.Lock()
+_lock = threading.Lock()  # OMPL's random generators are not shared safely between threads: one search at a time
 
 
 class _Motions(ob.MotionValidator):
     """A straight joint move is valid when it ends within the limits and the clearance walk
     finds it clear (the start: valid already, OMPL checked it)."""
 
-    def __init__(self, info: object, robot: Robot, n: int) -> None:
+    def __init__(self, info: object, robot: Robot) -> None:
         super().__init__(info)
-        self.robot, self.n = robot, n
+        self.robot = robot
 
     def checkMotion(self, s1: object, s2: object, *_: object) -> bool:  # noqa: N802 (OMPL's name)
-        qa = np.array([s1[i] for i in range(self.n)])  # type: ignore[index]
-        qb = np.array([s2[i] for i in range(self.n)])  # type: ignore[index]
-        if not self.robot.limits.contains(qb, tol=0.0):
-            return False
-        try:
-            check_clear(self.robot, _ENDS, np.array([qa, qb]))
-        except CollisionError:
-            return False
-        return True
+        n = self.robot.nq
+        qb = _q(s2, n)
+        return bool(self.robot.limits.contains(qb, tol=0.0)) and clear_move(self.robot, _q(s1, n), qb)
 
 
-_ENDS = np.array([0.0, 1.0])  # OMPL's random generators are not shared safely between threads: one search at a time
+def _q(state: object, n: int) -> FloatArray:
+    """An OMPL state's joint vector."""
+    return np.array([state[i] for i in range(n)])  # type: ignore[index]
 
 
 def path_around(
@@ -82,12 +77,12 @@ def path_around(
     margin = min(MARGIN, 0.5 * world.clearance(start)[0], 0.5 * world.clearance(goal)[0])
 
     def valid(state: object) -> bool:
-        q = np.array([state[i] for i in range(n)])  # type: ignore[index]
+        q = _q(state, n)
         return bool(lim.contains(q, tol=0.0)) and world.clearance(q)[0] > margin
 
     setup.setStateValidityChecker(valid)
     info = setup.getSpaceInformation()
-    motions = _Motions(info, robot, n)  # (kept alive here while OMPL holds it)
+    motions = _Motions(info, robot)  # (kept alive here while OMPL holds it)
     info.setMotionValidator(motions)
     a, b = space.allocState(), space.allocState()
     for i in range(n):
@@ -101,7 +96,7 @@ def path_around(
             return None
         setup.simplifySolution(SHORTENING)
         path = setup.getSolutionPath()
-        out = [np.array([path.getState(k)[i] for i in range(n)]) for k in range(path.getStateCount())]
+        out = [_q(path.getState(k), n) for k in range(path.getStateCount())]
     out[0], out[-1] = np.array(start, dtype=float), np.array(goal, dtype=float)  # (exactly: not via floats of OMPL's)
     return [q for k, q in enumerate(out) if k == 0 or not math.isclose(float(np.max(np.abs(q - out[k - 1]))), 0.0)]
 

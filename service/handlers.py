@@ -64,10 +64,9 @@ class Handlers:
         self.publish = publish
         self.adapters = adapters
         self._world_lock = threading.Lock()  # (world changes, one at a time)
-        self._fixed: dict[str, frozenset[str]] = {}  # an arm's obstacles from robot.toml
-        for arm in self.arms.values():
-            if arm.collision is not None:
-                self._fixed[arm.name] = frozenset(o.name for o in arm.collision.obstacles)
+        # an arm's obstacles from robot.toml: those it has at its first world request (only
+        # this verb changes the world)
+        self._fixed: dict[str, frozenset[str]] = {}
 
     # -- read-only verbs -------------------------------------------------------------------
 

@@ -525,7 +525,9 @@ IK_BATCH = Obj(
 PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),), top=True)
 MOVE = Obj(_MOTION, required=PLAN.required, top=True)
 GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)
-SHAPES = ("box", "sphere", "cylinder")  # robots.collision.SIZES (tests check they agree)
+# an obstacle's shapes: robots.collision.SIZES's (not imported: the client loads this module
+# without Pinocchio; tests/test_world.py checks they agree)
+SHAPES = ("box", "sphere", "cylinder")
 MIN_SIZE = 0.0005  # [m] an obstacle's smallest dimension
 MAX_OBSTACLES = 64  # obstacles added at run time, per arm
 OBSTACLE = Obj(

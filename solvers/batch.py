@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from armd.errors import BadRequest
 from armd.robots import Robot
 from armd.robots.angles import wrap_array
+from armd.robots.collision import CollisionModel
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_many
@@ -211,11 +212,7 @@ def solve_ik_batch(
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
     world = robot.collision if collisions else None
     if world is not None:  # a colliding answer, or a target under the floor: the single-target path
-        if world.ground is not None:
-            good &= pts[:, 2] >= world.ground
-        for i in np.flatnonzero(good).tolist():
-            if world.first_contact(q[i]) is not None:
-                good[i] = False
+        good[_touching(world, pts, q, good)] = False
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
     branch[good] = np.array(BRANCH_NAMES)[ids[good]]
     pitch_out[good] = wrap_array(pitch_out[good])  # (the compiled stage's tool pitch, unwrapped)
@@ -283,9 +280,19 @@ def reachable(
         good &= codes == EXACT
     world = robot.collision
     if world is not None:  # clear of the arm itself, the floor and the obstacles (else solve_ik's word)
-        if world.ground is not None:
-            good &= pts[:, 2] >= world.ground
-        for i in np.flatnonzero(good).tolist():
-            if world.first_contact(q[i]) is not None:
-                good[i] = solve_ik(robot, pts[i], approach=approach, tolerance=tolerance).status == OK
+        under = _under(world, pts)
+        for i in _touching(world, pts, q, good):
+            good[i] = not under[i] and solve_ik(robot, pts[i], approach=approach, tolerance=tolerance).status == OK
     return good
+
+
+def _under(world: CollisionModel, pts: FloatArray) -> NDArray[np.bool_]:
+    """Which targets lie under the floor (none without one)."""
+    return pts[:, 2] < world.ground if world.ground is not None else np.zeros(len(pts), dtype=bool)
+
+
+def _touching(world: CollisionModel, pts: FloatArray, q: FloatArray, rows: NDArray[np.bool_]) -> list[int]:
+    """Of the ``rows`` answered, those whose target is under the floor or whose answer ``q[i]``
+    touches something: the single-target path's to answer (it looks for a clear branch)."""
+    under = _under(world, pts)
+    return [i for i in np.flatnonzero(rows).tolist() if under[i] or world.first_contact(q[i]) is not None]

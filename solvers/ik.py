@@ -417,17 +417,8 @@ def _alternatives(
     the clear atlas configurations nearest the target (other wrist rolls; an arm outside the
     family)."""
     if arm.arrays is not None and pitch is None and arm.robot.chooses_pitch:
-        b = arm.buffers
         for p in pitches(float(FREE_PITCHES[0])):
-            code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
-            if code != EXACT:
-                continue
-            names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
-            rows = [(names[r], b.qs[r].copy(), float(b.errs[r])) for r in range(m)]
-            if arm.exact:
-                yield from (Branch(n, q, e) for n, q, e in rows if e <= tolerance)
-            else:
-                yield from _refined(arm, rows, point, p, tolerance)[0]
+            yield from _branches_at(arm, point, p, ref, tolerance)
     yield from _rolled(arm, point, pitch, ref, tolerance)
     w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
     for start in clear_starts(arm, world, point, _NUMERICAL_STARTS):
@@ -461,18 +452,27 @@ def _rolled(
         tried = [float(FREE_PITCHES[0]), *pitches(float(FREE_PITCHES[0]))[:ROLLED_PITCHES]]
     else:
         tried = [float(FREE_PITCHES[0])]
-    b = arm.buffers
-    rows: list[tuple[str, FloatArray, float]] = []
-    for p in tried:
-        code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
-        if code == EXACT or (pitch is None and code != NONE):
-            names = [BRANCH_NAMES[k] for k in b.ids.tolist()[:m]]
-            rows += [(names[r], b.qs[r].copy(), float(b.errs[r])) for r in range(m) if float(b.errs[r]) <= tolerance]
+    found = [branch for p in tried for branch in _branches_at(arm, point, p, ref, tolerance)]
     for roll in rolls:
-        for name, q, err in rows:
-            turned = q.copy()
+        for branch in found:
+            turned = branch.q.copy()
             turned[i] = roll
-            yield Branch(name, turned, err)
+            yield Branch(branch.name, turned, branch.position_error)
+
+
+def _branches_at(arm: ArmState, point: FloatArray, p: float, ref: FloatArray, tolerance: float) -> list[Branch]:
+    """The closed form's branches on ``point`` at tool pitch ``p`` (refined by the QP for an arm
+    outside the exact family); none where the pitch does not reach it."""
+    assert arm.arrays is not None
+    b = arm.buffers
+    code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
+    if code != EXACT:
+        return []
+    names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
+    rows = [(names[r], b.qs[r].copy(), float(b.errs[r])) for r in range(m)]
+    if arm.exact:
+        return [Branch(n, q, e) for n, q, e in rows if e <= tolerance]
+    return list(_refined(arm, rows, point, p, tolerance)[0])
 
 
 # -- arms outside the family -------------------------------------------------------------

@@ -94,6 +94,13 @@ def test_bad_world_requests_change_nothing(armd: ArmClient, request_: dict[str, 
     assert armd.world("insomniac") == before  # all or nothing
 
 
+def test_the_protocol_takes_the_shapes_the_checker_knows() -> None:
+    from armd.robots.collision import SIZES
+    from armd.service.protocol import SHAPES
+
+    assert tuple(SIZES) == SHAPES
+
+
 def test_at_most_64_obstacles_are_added(armd: ArmClient) -> None:
     many = [{"name": f"s{i}", "shape": "sphere", "size": [0.005], "position": [-0.4, 0.4, 0.01 * i]} for i in range(65)]
     with pytest.raises(BadRequest):

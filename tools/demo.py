@@ -25,20 +25,11 @@ import numpy as np
 
 from armd import robots, solvers
 from armd.clients import ArmClient, TrajectoryReply
-from armd.errors import BadRequest, CollisionError, ServiceError, UnknownRobot
-from armd.planning.clearance import check_clear
+from armd.errors import BadRequest, ServiceError, UnknownRobot
+from armd.planning.clearance import clear_move
 from armd.robots import Robot
 
 from .plot import plot_reply
-
-
-def _clear(arm: Robot, a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether the straight joint move from ``a`` to ``b`` is clear of the arm's world."""
-    try:
-        check_clear(arm, np.array([0.0, 1.0]), np.array([a, b]))
-    except CollisionError:
-        return False
-    return True
 
 
 @dataclass
@@ -145,7 +136,7 @@ class Demo:
         goal = here  # a long joint move toward the far limits, as far as the coupled limits allow
         for fraction in (0.8, 0.6, 0.4, 0.2, 0.1):  # ... and the arm's world (a move from rest is straight)
             q = here + fraction * (far - here)
-            if lim.contains(q) and _clear(arm, here, q):
+            if lim.contains(q) and clear_move(arm, here, q):
                 goal = q
                 break
         got = self.timed(arm.name, "stop", "mid-move", lambda: c.move(arm.name, goal.tolist()))
