@@ -23,8 +23,11 @@ linkage's servos (a group that moves more than one joint, desk4's) go in one com
   plan's average over the move ahead, from where the board is (a board off the plan converges
   on it), within one period's change of speed of the move in hand (every acceleration limit,
   over the time since the previous change) and within every velocity limit, whole
-  microseconds allowed for; its target is where that speed leads, kept inside the position
-  limits. The plan's clock advances with the board's, by at most ``MAX_SLIP`` periods a line:
+  microseconds allowed for; its target is where that speed leads, but no farther than the
+  board could run on to and still brake inside every position limit (a board whose adapter
+  stalls for less than the lead runs on to it), and a speed that could not stop inside them
+  from a period on is slowed, within that period's change. The plan's clock advances with
+  the board's, by at most ``MAX_SLIP`` periods a line:
   a late adapter, a stalled process or a slow link re-time the rest of the trajectory,
   slower, from where the board is, ramping up from rest when the board had stopped; nothing
   catches up by jumping. The last line ends at the trajectory's end, once the board may stop
@@ -471,8 +474,10 @@ class SSC32Adapter(SerialAdapter):
         Each joint's speed is the plan's average over the move ahead, from where the board is
         (so a board ahead of or behind the plan converges on it), within one period's change
         of speed of the move in hand (the acceleration limit, over the time since the
-        previous change) and within the velocity limit; the target is where that speed
-        leads in ``span``, kept inside the position limits. The plan's clock advances with
+        previous change) and within the velocity limit, slowed where it could not stop inside
+        the position limits (:meth:`_brakeable`); the target is where that speed leads in
+        ``span``, or nearer, where the board could still stop (:meth:`_target`). The plan's
+        clock advances with
         the board's, by at most ``MAX_SLIP`` periods a line: a late line re-times the rest
         of the trajectory, slower, from where the board is.
         """
@@ -508,8 +513,55 @@ class SSC32Adapter(SerialAdapter):
         if cmd.kind == "stop":  # a stop never reverses a joint
             v = np.where(v * v0 < 0.0, 0.0, v)
         v = np.clip(v, rounding - self._vmax, self._vmax - rounding)
-        x = self._inside(p0, p0 + v * span)
-        return x, (x - p0) / span, tau, False
+        v = self._brakeable(p0, v, v0, c, period)
+        x = self._inside(p0, self._target(p0, v, span, period))
+        # a timed group's speed is its way over T; a servo with its own speed S keeps it, whatever its target
+        return x, np.where(self._timed_joint, (x - p0) / span, v), tau, False
+
+    def _stop_point(self, x: FloatArray, v: FloatArray, period: float) -> FloatArray:
+        """Where a joint at ``x`` moving at ``v`` [rad/s] stops at the latest: a period more at
+        that speed (until the next line), then braking at its acceleration limit."""
+        return x + v * period + v * np.abs(v) / (2.0 * self._amax)
+
+    def _brakeable(self, p0: FloatArray, v: FloatArray, v0: FloatArray, c: FloatArray, period: float) -> FloatArray:
+        """``v``, or as little slower as keeps every joint able to stop inside every position
+        limit, braking by its acceleration limit from where the next line finds it (a period
+        on): the board is never on a motion that only a harder stop than the limits allow could
+        end inside them. The most it slows is ``c`` toward rest, the acceleration budget; a
+        state the limits already forbid that way is left to :meth:`_inside` (the position
+        limits before the acceleration's)."""
+
+        def stops_inside(u: FloatArray) -> bool:
+            return self._within(self._stop_point(p0 + u * period, u, period))
+
+        if stops_inside(v):
+            return v
+        toward_rest = np.where(v0 > 0.0, np.maximum(v0 - c, 0.0), np.minimum(v0 + c, 0.0))
+        brake = np.where(np.abs(v) <= np.abs(toward_rest), v, toward_rest)
+        if not stops_inside(brake):
+            return brake
+        lo, hi = 0.0, 1.0  # the fraction of the way from braking to v
+        for _ in range(20):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if stops_inside(brake + mid * (v - brake)) else (lo, mid)
+        return brake + lo * (v - brake)
+
+    def _target(self, p0: FloatArray, v: FloatArray, span: float, period: float) -> FloatArray:
+        """Where a servo moving at ``v`` is sent: a span on, or nearer (a period on at the
+        least, where the next line finds it) as far as it could still stop from there inside
+        the limits (:meth:`_stop_point`). A board whose adapter stalls runs on to its targets
+        and stops there; running on less than a span, it is then still on a motion the limits
+        allow. A timed group's target is its speed's (a span on: its speed is its way over T)."""
+        full = p0 + v * span
+        if self._within(self._stop_point(full, v, period)):
+            return full
+        near = np.where(self._timed_joint, full, p0 + v * period)
+        lo, hi = 0.0, 1.0
+        for _ in range(20):
+            mid = (lo + hi) / 2
+            x = near + mid * (full - near)
+            lo, hi = (mid, hi) if self._within(self._stop_point(x, v, period)) else (lo, mid)
+        return near + lo * (full - near)
 
     def _inside(self, p0: FloatArray, x: FloatArray) -> FloatArray:
         """``x`` brought back toward ``p0``, along the way between them, as far as it must be to keep

@@ -383,6 +383,35 @@ def test_the_adapters_own_model_keeps_the_limits(
             adapter.close()
 
 
+def test_a_board_running_on_to_its_target_can_still_stop_inside_the_limits(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
+    """A long lead (a busy machine's: 0.25 s) toward a goal near a limit: each line's target is
+    where the board stops if the adapter stalls, and a stall shorter than the lead leaves the
+    board running toward it at the line's speed. From every target, at that speed, braking by
+    the acceleration limit must end inside the position limits (else the adapter, running
+    again, must brake harder than the limit: the 6x seen in a stall stress run). Before the
+    mend, targets were only kept inside the limits themselves, reached at full speed."""
+    arm = robots.load("insomniac")
+    goal = [1.45, 2.0, -1.8, 1.0, 1.0]  # base_yaw 0.12 rad from its upper limit
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, lead=0.25)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            client.move("insomniac", goal, wait=True, wait_timeout=15)
+            amax = arm.limits.acceleration
+            checked = 0
+            for p0, t0, p1, t1 in list(adapter._pieces)[1:]:
+                v = (p1 - p0) / np.maximum(t1 - t0, 1e-9)
+                stop = p1 + v * np.abs(v) / (2.0 * amax)
+                assert arm.limits.contains(stop, tol=1e-6), (p1, v, stop)
+                checked += 1
+            assert checked > 10
+            assert np.allclose(ssc32_joints(arm, emu), goal, atol=3e-3)
+        finally:
+            adapter.close()
+
+
 def test_busy_processes_do_not_break_the_promise(
     router: str, client: ArmClient, service: object, tmp_path: Path
 ) -> None:
