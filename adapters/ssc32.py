@@ -525,14 +525,14 @@ class SSC32Adapter(SerialAdapter):
 
     def _brakeable(self, p0: FloatArray, v: FloatArray, v0: FloatArray, c: FloatArray, period: float) -> FloatArray:
         """``v``, or as little slower as keeps every joint able to stop inside every position
-        limit, braking by its acceleration limit from where the next line finds it (a period
-        on): the board is never on a motion that only a harder stop than the limits allow could
-        end inside them. The most it slows is ``c`` toward rest, the acceleration budget; a
+        limit, braking by its acceleration limit from the nearest target it may be sent (a
+        period and the base lead on): the board is never on a motion that only a harder stop
+        than the limits allow could end inside them. The most it slows is ``c`` toward rest, the acceleration budget; a
         state the limits already forbid that way is left to :meth:`_inside` (the position
         limits before the acceleration's)."""
 
         def stops_inside(u: FloatArray) -> bool:
-            return self._within(self._stop_point(p0 + u * period, u, period))
+            return self._within(self._stop_point(p0 + u * (period + self.lead), u, period))
 
         if stops_inside(v):
             return v
@@ -547,15 +547,16 @@ class SSC32Adapter(SerialAdapter):
         return brake + lo * (v - brake)
 
     def _target(self, p0: FloatArray, v: FloatArray, span: float, period: float) -> FloatArray:
-        """Where a servo moving at ``v`` is sent: a span on, or nearer (a period on at the
-        least, where the next line finds it) as far as it could still stop from there inside
-        the limits (:meth:`_stop_point`). A board whose adapter stalls runs on to its targets
-        and stops there; running on less than a span, it is then still on a motion the limits
-        allow. A timed group's target is its speed's (a span on: its speed is its way over T)."""
+        """Where a servo moving at ``v`` is sent: a span on, or nearer (a period and the base
+        lead on at the least: a line a little late still finds it moving) as far as it could
+        still stop from there inside the limits (:meth:`_stop_point`). A board whose adapter
+        stalls runs on to its targets and stops there; running on less than a span, it is then
+        still on a motion the limits allow. A timed group's target is its speed's (a span on:
+        its speed is its way over T)."""
         full = p0 + v * span
         if self._within(self._stop_point(full, v, period)):
             return full
-        near = np.where(self._timed_joint, full, p0 + v * period)
+        near = np.where(self._timed_joint, full, p0 + v * min(period + self.lead, span))
         lo, hi = 0.0, 1.0
         for _ in range(20):
             mid = (lo + hi) / 2
