@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 # client does not need). Its errors are armd.errors'.
 
 if TYPE_CHECKING:
-    from .actuators import ActuatorMap, Gripper, Servo, Stepper
+    from .actuators import ActuatorMap, BusServo, Gripper, Servo, Stepper
     from .catalogue import CATALOGUE_DIR, load, load_dir, load_folder, names
     from .geometry import Geometry
     from .limits import CoupledLimit, JointLimits
@@ -22,7 +22,7 @@ if TYPE_CHECKING:
     from .sensors import RangeSensor
 
 _LAZY = {
-    **dict.fromkeys(("ActuatorMap", "Gripper", "Servo", "Stepper"), ".actuators"),
+    **dict.fromkeys(("ActuatorMap", "BusServo", "Gripper", "Servo", "Stepper"), ".actuators"),
     **dict.fromkeys(("CATALOGUE_DIR", "load", "load_dir", "load_folder", "names"), ".catalogue"),
     "Geometry": ".geometry",
     **dict.fromkeys(("CoupledLimit", "JointLimits"), ".limits"),
@@ -46,6 +46,7 @@ def __getattr__(name: str) -> Any:
 __all__ = [
     "CATALOGUE_DIR",
     "ActuatorMap",
+    "BusServo",
     "CoupledLimit",
     "Geometry",
     "Gripper",

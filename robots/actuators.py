@@ -112,19 +112,64 @@ class Stepper:
         return (math.ceil(lo * self.steps_per_rad - _TOL), math.floor(hi * self.steps_per_rad + _TOL))
 
 
-Actuator = Servo | Stepper
+@dataclass(frozen=True)
+class BusServo:
+    """A serial bus servo that reports where it is (Feetech STS/SCS, Dynamixel X series),
+    positioned in encoder counts on its bus ``id``.
+
+    ``counts = zero + direction * angle * counts_per_rev / (2 pi)``: ``zero`` is the count at
+    actuator angle 0 and ``direction`` the sign of the count against the angle (the arm's
+    calibration, kept in ``calibration.toml`` beside the arm's folder, overrides both and the
+    range); ``count_range`` is the counts the servo may be commanded to (its angle limits).
+    """
+
+    name: str
+    id: int
+    counts_per_rev: int
+    zero: float
+    direction: int
+    count_range: tuple[float, float]
+    angle_range: tuple[float, float]
+
+    kind = "bus_servo"
+    unit = "counts"
+
+    @property
+    def counts_per_rad(self) -> float:
+        return self.counts_per_rev / (2.0 * math.pi)
+
+    @property
+    def resolution(self) -> float:
+        """One count as an angle [rad]."""
+        return 1.0 / self.counts_per_rad
+
+    def to_command(self, angle: FloatArray) -> FloatArray:
+        """Counts (unrounded) for actuator angle(s) [rad]."""
+        return self.zero + self.direction * angle * self.counts_per_rad
+
+    def to_angle(self, command: FloatArray) -> FloatArray:
+        """Actuator angle [rad] for count(s)."""
+        return self.direction * (command - self.zero) / self.counts_per_rad
+
+    @property
+    def command_range(self) -> tuple[float, float]:
+        return self.count_range
+
+
+Actuator = Servo | Stepper | BusServo
 
 
 @dataclass(frozen=True)
 class Gripper:
-    """The gripper: an actuator that is not a joint of the chain. Pulses [us]."""
+    """The gripper: an actuator that is not a joint of the chain. Pulses [us] on an SSC-32
+    channel, or counts of the bus servo whose id is ``channel``."""
 
     channel: int
     closed: float
     open: float
 
     def pulse(self, opening: float) -> int:
-        """Pulse [us] for ``opening`` in [0, 1] (0 closed, 1 open)."""
+        """Pulse [us] (or counts) for ``opening`` in [0, 1] (0 closed, 1 open)."""
         if isinstance(opening, bool) or not (
             isinstance(opening, (int, float)) and math.isfinite(opening) and 0.0 <= opening <= 1.0
         ):  # (True is an int to Python, not to JSON)

@@ -22,7 +22,7 @@ import pinocchio as pin
 
 from armd.errors import RobotFileError, UnknownRobot
 
-from .actuators import Actuator, ActuatorMap, Gripper, Servo, Stepper
+from .actuators import Actuator, ActuatorMap, BusServo, Gripper, Servo, Stepper
 from .chain import recognise, roll_joint
 from .collision import GROUND, CollisionModel, Obstacle
 from .geometry import Geometry
@@ -42,6 +42,10 @@ _MISSING = object()
 # Where robot.toml gives no acceleration or jerk limit for a joint (documented in docs/robot-format.md):
 ACCELERATION_PER_VELOCITY = 4.0  # [1/s] acceleration = 4 x velocity limit
 JERK_PER_ACCELERATION = 10.0  # [1/s] jerk = 10 x acceleration: full speed from rest in 0.35 s
+BUS_ID_MAX = 252  # the highest id of a servo on a Feetech or Dynamixel bus (253.. are reserved, 254 broadcast)
+# The most a measured position may trail the plan before the move is aborted, where robot.toml's
+# [joints.<name>] tracking_tolerance does not say (adapters whose servos report their position)
+TRACKING_TOLERANCE = 0.15  # [rad]
 CONTINUOUS_RANGE = 2.0 * math.pi  # [rad] a continuous joint's limits, +-, unless robot.toml narrows them
 log = logging.getLogger(__name__)
 
@@ -229,7 +233,7 @@ class _Builder:
         model = self._rooted_at(model, base_frame, meta, urdf_name)
         n = len(joint_names)
         index = {j: i for i, j in enumerate(joint_names)}
-        limits = self._limits(
+        limits, tracking = self._limits(
             model, joint_names, index, top.table("joints", {}), top.tables("coupled_limits"), urdf_name
         )
         neutral = np.array(meta.vector("neutral", n, [0.0] * n, angle=True))
@@ -274,6 +278,7 @@ class _Builder:
             tool_axis=tool_axis,
             roll_joint=roll,
             collision=collision,
+            tracking_tolerance=tracking,
         )
 
     def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:
@@ -426,8 +431,10 @@ class _Builder:
         joints: _Table,
         coupled_tables: list[_Table],
         urdf_name: str,
-    ) -> JointLimits:
+    ) -> tuple[JointLimits, FloatArray]:
+        """The limits, and each joint's tracking tolerance [rad]."""
         n = len(joint_names)
+        tracking = np.full(n, TRACKING_TOLERANCE)
         lower = np.array(model.lowerPositionLimit[:n], dtype=float)
         upper = np.array(model.upperPositionLimit[:n], dtype=float)
         velocity = np.array(model.velocityLimit[:n], dtype=float)
@@ -445,6 +452,7 @@ class _Builder:
             for key, into in (("acceleration", acceleration), ("jerk", jerk)):
                 if jt.raw(key, None) is not None:  # (optional: a default from the velocity limit, below)
                     into[i] = jt.number(key, positive=True)
+            tracking[i] = jt.number("tracking_tolerance", TRACKING_TOLERANCE, positive=True)
             jt.finish()
             if not (np.isfinite(lower[i]) and np.isfinite(upper[i]) and lower[i] < upper[i]):
                 raise jt.error(
@@ -493,7 +501,7 @@ class _Builder:
                 raise ct.error("upper", f"must be greater than lower ({lo} < {hi})")
             ct.finish()
             coupled.append(CoupledLimit(cname, coeffs, lo, hi))
-        return JointLimits(joint_names, lower, upper, velocity, acceleration, jerk, tuple(coupled))
+        return JointLimits(joint_names, lower, upper, velocity, acceleration, jerk, tuple(coupled)), tracking
 
     def _geometry(
         self, top: _Table, index: dict[str, int], model: pin.Model, tool_frame: str, limits: JointLimits
@@ -581,6 +589,7 @@ class _Builder:
         offsets = np.zeros(len(tables))
         channels: dict[int, str] = {}
         axes: dict[str, str] = {}
+        ids: dict[int, str] = {}
         for k, t in enumerate(tables):
             name = t.string("name")
             if name in [a.name for a in actuators]:
@@ -644,8 +653,39 @@ class _Builder:
                     gear=t.number("gear", 1.0, positive=True),
                     angle_range=angle_range,  # type: ignore[arg-type]
                 )
+            elif kind == "bus_servo":
+                ident = t.integer("id", minimum=0)
+                if ident > BUS_ID_MAX:
+                    raise t.error("id", f"must be 0..{BUS_ID_MAX} (the bus's broadcast id is above), got {ident}")
+                if ident in ids:
+                    raise t.error("id", f"id {ident} is already used by {ids[ident]!r}")
+                ids[ident] = name
+                per_rev = t.integer("counts_per_rev", 4096, minimum=2)
+                direction = t.integer("direction", 1)
+                if direction not in (1, -1):
+                    raise t.error("direction", f"must be 1 or -1, got {direction}")
+                count_range = tuple(t.vector("range", 2, [0.0, per_rev - 1.0]))
+                if not count_range[0] < count_range[1]:
+                    raise t.error("range", f"must be [lower, upper] counts with lower < upper, got {list(count_range)}")
+                act = BusServo(
+                    name=name,
+                    id=ident,
+                    counts_per_rev=per_rev,
+                    zero=t.number("zero", per_rev / 2.0),
+                    direction=direction,
+                    count_range=count_range,  # type: ignore[arg-type]
+                    angle_range=angle_range,  # type: ignore[arg-type]
+                )
+                ends = sorted(float(act.to_command(np.array(x))) for x in angle_range)
+                if ends[0] < count_range[0] - 1e-6 or ends[1] > count_range[1] + 1e-6:
+                    raise t.error(
+                        None,
+                        f"its angle range [{angle_range[0]:.4f}, {angle_range[1]:.4f}] rad maps to "
+                        f"counts [{ends[0]:.1f}, {ends[1]:.1f}], outside its range {list(count_range)}: "
+                        "fix zero/direction (or calibrate), or narrow the joint limits",
+                    )
             else:
-                raise t.error("type", f"must be 'servo' or 'stepper', got {kind!r}")
+                raise t.error("type", f"must be 'servo', 'stepper' or 'bus_servo', got {kind!r}")
             if angle_range[0] > reach[0] + 1e-9 or angle_range[1] < reach[1] - 1e-9:
                 raise t.error(
                     "angle_range",
@@ -662,9 +702,14 @@ class _Builder:
         gripper = None
         if top.has("gripper"):
             gt = top.table("gripper")
-            channel = gt.integer("channel", minimum=0)
-            if channel in channels:
-                raise gt.error("channel", f"channel {channel} is already used by {channels[channel]!r}")
+            if ids:  # a bus servo's id
+                channel = gt.integer("id", minimum=0)
+                if channel in ids or channel > BUS_ID_MAX:
+                    raise gt.error("id", f"id {channel} is already used by {ids.get(channel)!r} or above {BUS_ID_MAX}")
+            else:
+                channel = gt.integer("channel", minimum=0)
+                if channel in channels:
+                    raise gt.error("channel", f"channel {channel} is already used by {channels[channel]!r}")
             gripper = Gripper(channel=channel, closed=gt.number("closed"), open=gt.number("open"))
             gt.finish()
         return ActuatorMap(tuple(actuators), rows, offsets), gripper

@@ -80,6 +80,7 @@ class Robot:
         tool_axis: FloatArray | None = None,
         roll_joint: RollJoint | None = None,
         collision: CollisionModel | None = None,
+        tracking_tolerance: FloatArray | None = None,
     ) -> None:
         self.name = name
         self.title = title
@@ -99,6 +100,10 @@ class Robot:
         self.family_note = family_note
         self.roll_joint = roll_joint
         self.collision = collision
+        # [rad] per joint: the most a measured position may trail the plan (execution monitoring)
+        self.tracking_tolerance = (
+            np.full(len(joint_names), 0.15) if tracking_tolerance is None else np.asarray(tracking_tolerance, float)
+        )
         self.tool_axis = np.array([1.0, 0.0, 0.0]) if tool_axis is None else np.asarray(tool_axis, dtype=float)
         # state the layers above derive from the arm, made once and kept with it (the solver's arrays)
         self.derived: dict[str, object] = {}

@@ -57,7 +57,7 @@ def test_gupta3_microsteps() -> None:
         assert steps.tolist() == [round(x * 16 * 200 / (2 * math.pi)) for x in q]
 
 
-@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4"])
+@pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3", "desk4", "so101"])
 def test_round_trip_within_one_quantum(name: str) -> None:
     arm = robots.load(name)
     amap = arm.actuators
@@ -72,6 +72,19 @@ def test_round_trip_within_one_quantum(name: str) -> None:
     # and a second trip is exact: quantised configurations are fixed points
     assert np.array_equal(amap.commands(back), cmds)
     assert np.allclose(amap.quantise(qs), back)
+
+
+def test_so101_bus_servo_counts() -> None:
+    """counts = zero + direction * angle * 4096 / (2 pi): the factory's middle at the vendor's zero."""
+    from dataclasses import replace
+
+    arm = robots.load("so101")
+    assert arm.actuators.commands(arm.neutral).tolist() == [2048] * 5
+    q = np.array([0.5, -0.3, 0.2, 1.0, -2.0])
+    assert arm.actuators.commands(q).tolist() == [round(2048 + x * 4096 / (2 * math.pi)) for x in q]
+    flipped = replace(arm.actuators.actuators[0], direction=-1, zero=1000.0)  # type: ignore[type-var]
+    assert float(flipped.to_command(np.array(0.5))) == pytest.approx(1000.0 - 0.5 * 4096 / (2 * math.pi))
+    assert float(flipped.to_angle(flipped.to_command(np.array(0.5)))) == pytest.approx(0.5)
 
 
 def test_commands_outside_range_are_errors_not_clamped() -> None:

@@ -79,7 +79,7 @@ BAD_TOML = [
     ("gupta3", 'elbow = "elbow"\npivot', 'elbow = "shoulder"\npivot', "geometry", "different joints"),
     ("gupta3", 'axis = "Y"', 'axis = "X"', "actuators[1].axis", "already used"),
     ("gupta3", "joints = { elbow = 1.0 }", "joints = { shoulder = 2.0 }", "actuators", "rank"),
-    ("gupta3", 'type = "stepper"', 'type = "hydraulic"', "actuators[0].type", "'servo' or 'stepper'"),
+    ("gupta3", 'type = "stepper"', 'type = "hydraulic"', "actuators[0].type", "'servo', 'stepper' or 'bus_servo'"),
     ("gupta3", "joints = { base_yaw = 1.0 }", "joints = { turret = 1.0 }", "actuators[0].joints.turret", "not a joint"),
     ("insomniac", "channel = 3", "channel = 2", "actuators[3].channel", "already used"),
     (
@@ -110,6 +110,30 @@ BAD_TOML = [
     ),
     ("desk4", "neutral = [0.0, 1.2, -1.2]", "neutral = [0.0, 1.9, -0.5]", "robot.neutral", "linkage"),
     ("desk4", 'pitch = "level"', 'pitch = "tilted"', "geometry.pitch", "'joints' or 'level'"),
+    ("so101", "id = 3", "id = 2", "actuators[2].id", "already used"),
+    ("so101", "id = 5", "id = 253", "actuators[4].id", "0..252"),
+    (
+        "so101",
+        'zero = 2048\ndirection = 1\nrange = [0, 4095]\n\n[[actuators]]\nname = "elbow_flex"',
+        'zero = 3500\ndirection = 1\nrange = [0, 4095]\n\n[[actuators]]\nname = "elbow_flex"',
+        "actuators[1]",
+        "outside its range",
+    ),
+    (
+        "so101",
+        'range = [0, 4095]\n\n[[actuators]]\nname = "wrist_flex"',
+        'range = [4095, 0]\n\n[[actuators]]\nname = "wrist_flex"',
+        "actuators[2].range",
+        "lower < upper",
+    ),
+    ("so101", "[gripper]\nid = 6", "[gripper]\nid = 5", "gripper.id", "already used"),
+    (
+        "so101",
+        "tracking_tolerance = 0.1",
+        "tracking_tolerance = -0.1",
+        "joints.shoulder_pan.tracking_tolerance",
+        "positive",
+    ),
 ]
 
 
