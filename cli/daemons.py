@@ -55,20 +55,38 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+BUS_SERVOS = {"feetech": "Feetech", "dynamixel": "Dynamixel"}  # the bus-servo adapters: their vendors
+
+
 def cmd_adapter(args: argparse.Namespace) -> int:
     """The port first (a missing or busy one: one line naming it, exit 1), then Zenoh (retried
     until a router answers), then the adapter."""
     arm = robot_named(args.robot, args.robots_dir)
-    port = None
+    port: Any = None
     if args.kind != "sim":
         from armd.adapters.serial_port import open_port  # (pyserial: the hardware extra; main() says so)
         from armd.errors import ControllerFault
 
         if not args.port:
             raise BadRequest(f"the {args.kind} adapter needs --port (e.g. /dev/ttyUSB0)", field="port")
-        baud = args.baud or int(arm.controller.get("baud", 115200))  # type: ignore[call-overload]
         try:
-            port = open_port(args.port, baud, 0.5, 0.5, exclusive=True)
+            if args.kind in BUS_SERVOS:  # (the vendor's SDK opens its port itself)
+                from armd.adapters.base import actuators_of
+                from armd.robots import BusServo
+
+                actuators_of(arm, BusServo, BUS_SERVOS[args.kind])
+                rate = args.baud or int(arm.controller.get("baud", 1_000_000))  # type: ignore[call-overload]
+                if args.kind == "feetech":
+                    from armd.adapters.feetech import FeetechBus
+
+                    port = FeetechBus(args.port, rate)
+                else:
+                    from armd.adapters.dynamixel import DynamixelBus
+
+                    port = DynamixelBus(args.port, rate)
+            else:
+                baud = args.baud or int(arm.controller.get("baud", 115200))  # type: ignore[call-overload]
+                port = open_port(args.port, baud, 0.5, 0.5, exclusive=True)
         except ControllerFault as e:
             print(f"armd: {e.message}", file=sys.stderr)
             return 1
@@ -135,6 +153,14 @@ def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: obje
             time_scale=args.time_scale,
             lag=args.lag,
         )
+    if args.kind == "feetech":
+        from armd.adapters.feetech import FeetechAdapter
+
+        return FeetechAdapter(session, arm, args.port, baud=args.baud, bus=port, prefix=args.prefix)  # type: ignore[arg-type]
+    if args.kind == "dynamixel":
+        from armd.adapters.dynamixel import DynamixelAdapter
+
+        return DynamixelAdapter(session, arm, args.port, baud=args.baud, bus=port, prefix=args.prefix)  # type: ignore[arg-type]
     if args.kind == "ssc32":
         from armd.adapters.ssc32 import SSC32Adapter
 
@@ -258,15 +284,16 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p = sub.add_parser("adapter", parents=[log_args], help="run a hardware adapter daemon for one arm")
     p.add_argument(
         "kind",
-        choices=["sim", "ssc32", "grbl"],
-        help="sim: a simulated arm; ssc32: servos on an SSC-32; grbl: steppers on GRBL",
+        choices=["sim", "ssc32", "grbl", *BUS_SERVOS],
+        help="sim: a simulated arm; ssc32: servos on an SSC-32; grbl: steppers on GRBL; "
+        "feetech: Feetech STS bus servos (the SO-101); dynamixel: Dynamixel X bus servos, Protocol 2.0",
     )
     p.add_argument("robot")
     network_args(p)
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
     p.add_argument("--lag", type=float, default=0.0, help="first-order servo lag time constant [s] (sim)")
-    p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl)")
+    p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl; a serial port for feetech, dynamixel)")
     p.add_argument(
         "--baud", type=int, default=None, help="the controller's baud rate (default: the arm's [controller] baud)"
     )

@@ -14,7 +14,12 @@ from armd.errors import ArmdError
 from . import calls, daemons, offline, tools
 from .common import LOG_LEVELS, set_up_logging
 
-EXTRAS = {"serial": "hardware", "matplotlib": "view", "meshcat": "view"}  # a module: the extra that installs it
+EXTRAS = {
+    "serial": "hardware",
+    "scservo_sdk": "hardware",
+    "matplotlib": "view",
+    "meshcat": "view",
+}  # a module: the extra that installs it
 
 
 def build_parser() -> argparse.ArgumentParser:
