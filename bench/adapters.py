@@ -21,7 +21,11 @@ fit sees the motion, not the steps) as a ratio of the limits; executed vs planne
 stop's latency (from ``stop`` asked to the arm at rest) against the stop's planned duration.
 Medians and worst over the runs.
 
-Run: ``.venv/bin/python bench/adapters.py [--runs 3]``. Prints a Markdown table.
+Then the bus servos (bench/bus_servo_bench.py): the Feetech and Dynamixel adapters' bus round
+trip against the SDK's own sync read, the bus cycles a second, the tracking error and the
+stop's latency.
+
+Run: ``.venv/bin/python bench/adapters.py [--runs 3] [--only ssc32|grbl|bus]``. Prints Markdown tables.
 """
 
 from __future__ import annotations
@@ -286,7 +290,9 @@ def cell(values: list[float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="move pairs and stops per condition (default 3)")
-    parser.add_argument("--only", choices=["ssc32", "grbl"], help="one adapter only")
+    parser.add_argument(
+        "--only", choices=["ssc32", "grbl", "bus"], help="one adapter only (bus: Feetech and Dynamixel)"
+    )
     parser.add_argument("--condition", choices=CONDITIONS, help="one condition only")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as arms:
@@ -295,7 +301,7 @@ def main() -> None:
         rows: list[tuple[str, str, dict[str, Any]]] = []
         try:
             for name, runner in (("ssc32", ssc32_runs), ("grbl", grbl_runs)):
-                if args.only not in (None, name):
+                if args.only not in (None, name) or args.only == "bus":
                     continue
                 for condition in CONDITIONS:
                     if args.condition not in (None, condition):
@@ -310,6 +316,12 @@ def main() -> None:
                     print(f"{name} {condition}: {time.monotonic() - started:.0f} s", file=sys.stderr, flush=True)
         finally:
             b.close()
+    if not rows:
+        if args.only in (None, "bus"):
+            from bus_servo_bench import bus_rows, print_table
+
+            print_table(bus_rows(args.runs))
+        return
     print(
         "| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop "
         "| lines held (worst) |"
@@ -324,6 +336,10 @@ def main() -> None:
             f"{cell(res['stop'])} | {int(max(res['held'])) if res['held'] else '-'} |"
         )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
+    if args.only in (None, "bus"):
+        from bus_servo_bench import bus_rows, print_table
+
+        print_table(bus_rows(args.runs))
 
 
 if __name__ == "__main__":
