@@ -35,6 +35,7 @@ import time
 import uuid
 from abc import ABC, abstractmethod
 from collections import OrderedDict
+from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
@@ -77,6 +78,15 @@ def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
             f"{robot.name}'s actuators are not all {what}: the {adapter} adapter drives {what}", field="robot"
         )
     return drives
+
+
+def state_dir_default() -> Path:
+    """Where adapters keep what must outlive them: ``$ARMD_STATE_DIR``, else ``$XDG_STATE_HOME/armd``,
+    else ``~/.local/state/armd``."""
+    if os.environ.get("ARMD_STATE_DIR"):
+        return Path(os.environ["ARMD_STATE_DIR"])
+    xdg = os.environ.get("XDG_STATE_HOME")
+    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "armd"
 
 
 LOOP_PRIORITY = 20  # SCHED_FIFO priority of an adapter's control loop (ros2_control's controller manager uses 50)

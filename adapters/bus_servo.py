@@ -42,6 +42,7 @@ import threading
 import time
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -50,8 +51,9 @@ import zenoh
 from armd.errors import ControllerFault
 from armd.planning import JointState
 from armd.robots import BusServo, Robot
+from armd.robots import calibration as robots_calibration
 
-from .base import Adapter, actuators_of
+from .base import Adapter, actuators_of, state_dir_default
 from .trajectory_message import Command, FloatArray
 
 log = logging.getLogger(__name__)
@@ -459,6 +461,13 @@ class BusServoAdapter(Adapter):
         self.bus.close()
 
 
+def calibration_file(robot: Robot) -> Path:
+    """Where ``armd calibrate`` keeps ``robot``'s calibration: beside the adapters' other state
+    (``$ARMD_STATE_DIR``, ...), ``<robot>.calibration.toml``; the arm's folder may be the
+    package's own."""
+    return state_dir_default() / f"{robot.name}.{robots_calibration.FILE}"
+
+
 class SdkBusAdapter(BusServoAdapter):
     """A bus-servo adapter on its vendor's :class:`SdkBus` (``bus_type``): ``robot``'s servos on
     ``port`` at ``baud`` (default: the arm's ``[controller] baud``, else 1 Mbaud), or on ``bus``,
@@ -477,9 +486,15 @@ class SdkBusAdapter(BusServoAdapter):
         prefix: str = "armd",
         state_hz: float = 50.0,
         lead: float = LEAD,
+        calibration: str | Path | None = None,
         **options: Any,
     ) -> None:
         actuators_of(robot, BusServo, self.bus_type.name)  # (an arm it cannot drive: refused before the port is opened)
+        # the arm's calibration (armd calibrate), if it has one: checked against its limits before the port is opened
+        cal = Path(calibration) if calibration else calibration_file(robot)
+        if calibration or cal.exists():
+            robot = robots_calibration.apply(robot, cal)
+            log.info("%s: calibration from %s", robot.name, cal)
         if bus is None:
             bus = self.bus_type(port, int(baud or robot.controller.get("baud", 1_000_000)))  # type: ignore[call-overload]
         super().__init__(session, robot, bus, prefix=prefix, state_hz=state_hz, lead=lead, **options)

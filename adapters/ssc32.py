@@ -59,7 +59,6 @@ import collections
 import json
 import logging
 import math
-import os
 import time
 from pathlib import Path
 
@@ -71,7 +70,7 @@ from armd.errors import BadRequest, ControllerFault
 from armd.planning import JointState
 from armd.robots import Robot, Servo
 
-from .base import actuators_of
+from .base import actuators_of, state_dir_default
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 
@@ -113,15 +112,6 @@ def _groups(M: FloatArray) -> list[list[int]]:
             old, new = group[r], group[linked[0]]
             group = [new if g == old else g for g in group]
     return [[r for r in rows if group[r] == g] for g in sorted(set(group), key=group.index)]
-
-
-def state_dir_default() -> Path:
-    """Where adapters keep what must outlive them: ``$ARMD_STATE_DIR``, else ``$XDG_STATE_HOME/armd``,
-    else ``~/.local/state/armd``."""
-    if os.environ.get("ARMD_STATE_DIR"):
-        return Path(os.environ["ARMD_STATE_DIR"])
-    xdg = os.environ.get("XDG_STATE_HOME")
-    return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "armd"
 
 
 class SSC32Adapter(SerialAdapter):

@@ -153,14 +153,20 @@ def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: obje
             time_scale=args.time_scale,
             lag=args.lag,
         )
-    if args.kind == "feetech":
+    if args.kind in BUS_SERVOS:
+        from armd.adapters.dynamixel import DynamixelAdapter
         from armd.adapters.feetech import FeetechAdapter
 
-        return FeetechAdapter(session, arm, args.port, baud=args.baud, bus=port, prefix=args.prefix)  # type: ignore[arg-type]
-    if args.kind == "dynamixel":
-        from armd.adapters.dynamixel import DynamixelAdapter
-
-        return DynamixelAdapter(session, arm, args.port, baud=args.baud, bus=port, prefix=args.prefix)  # type: ignore[arg-type]
+        cls = FeetechAdapter if args.kind == "feetech" else DynamixelAdapter
+        return cls(
+            session,
+            arm,
+            args.port,
+            baud=args.baud,
+            bus=port,  # type: ignore[arg-type]
+            prefix=args.prefix,
+            calibration=args.calibration,
+        )
     if args.kind == "ssc32":
         from armd.adapters.ssc32 import SSC32Adapter
 
@@ -300,6 +306,11 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--state-dir",
         help="where the adapter keeps the arm's last pose (ssc32; default $ARMD_STATE_DIR, else ~/.local/state/armd)",
+    )
+    p.add_argument(
+        "--calibration",
+        help="feetech, dynamixel: the arm's calibration.toml "
+        "(default: <state dir>/<robot>.calibration.toml, if it exists)",
     )
     known = p.add_mutually_exclusive_group()
     known.add_argument(

@@ -187,6 +187,35 @@ def test_a_lost_reply_is_skipped_and_a_silent_servo_is_a_fault(
         sub.undeclare()  # type: ignore[attr-defined]
 
 
+def test_a_calibration_maps_the_servos_and_one_that_contradicts_the_limits_is_refused(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, tmp_path: Path
+) -> None:
+    """shoulder_pan's servo mounted the other way round, its middle 252 counts off: with the
+    arm's calibration (in the state dir, where ``armd calibrate`` keeps it), the adapter reads
+    the joint at 0 where the servo is at 2300, and drives it the right way. A calibration whose
+    range does not cover the joint limits is refused before anything moves."""
+    from armd.adapters.bus_servo import calibration_file
+    from armd.errors import RobotFileError
+    from armd.robots import calibration
+
+    arm = robots.load("so101")
+    calibration.write(calibration_file(arm), {"shoulder_pan": (2300.0, -1, (600.0, 4000.0))})
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6], positions={1: 2300.0}) as emu:
+        adapter = FeetechAdapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            assert abs(adapter.measure().position[0]) < 2e-3
+            client.move("so101", [0.5, 0.0, 0.0, 0.0, 0.0], wait=True, wait_timeout=15)
+            assert abs(emu.position(1) - (2300 - 0.5 * 4096 / (2 * np.pi))) < 2
+        finally:
+            adapter.close()
+        bad = tmp_path / "narrow.toml"
+        calibration.write(bad, {"elbow_flex": (2048.0, 1, (1500.0, 2600.0))})
+        with pytest.raises(RobotFileError) as e:
+            FeetechAdapter(adapter_session, arm, emu.port, calibration=bad)
+        assert e.value.field == "elbow_flex" and "contradicts the joint limits" in e.value.problem
+
+
 def test_the_so101_end_to_end_from_the_command_line(router: str, service: object, tmp_path: Path) -> None:
     """``armd adapter feetech so101 --port ...`` as a user runs it, then ``armd move``."""
     arm = robots.load("so101")

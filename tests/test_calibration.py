@@ -1,0 +1,52 @@
+"""calibration.toml: a bus-servo arm's measured zeros, directions and ranges, checked at load."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from armd import robots
+from armd.errors import RobotFileError
+from armd.robots import calibration
+
+
+def test_a_calibration_overrides_the_factory_values_and_round_trips(tmp_path: Path) -> None:
+    arm = robots.load("so101")
+    path = tmp_path / "calibration.toml"
+    calibration.write(path, {"shoulder_pan": (2100.0, -1, (500.0, 3700.0)), "wrist_roll": (1990.0, 1, (100.0, 4000.0))})
+    cal = calibration.apply(arm, path)
+    q = np.array([0.5, 0.0, 0.0, 0.0, -1.0])
+    per = 4096 / (2 * math.pi)
+    assert cal.actuators.commands(q).tolist() == [round(2100 - 0.5 * per), 2048, 2048, 2048, round(1990 - per)]
+    assert np.allclose(cal.actuators.joints_from_commands(cal.actuators.commands(q)), q, atol=1e-3)
+    assert arm.actuators.commands(q)[0] == round(2048 + 0.5 * per)  # (the arm given is not changed)
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "words"),
+    [
+        ("[knee]\nzero = 2048\n", "knee", "not a bus servo of so101"),
+        ("[elbow_flex]\ndirection = 2\n", "elbow_flex", "direction must be 1 or -1"),
+        ("[elbow_flex]\nzero = 'middle'\n", "elbow_flex", "must be numbers"),
+        ("[elbow_flex]\noffset = 3\n", "elbow_flex", "zero, direction and range only"),
+        ("[elbow_flex]\nrange = [1500, 2600]\n", "elbow_flex", "contradicts the joint limits"),
+        ("[elbow_flex\n", None, "cannot be read"),
+    ],
+)
+def test_a_bad_calibration_is_refused_naming_what(tmp_path: Path, text: str, field: str | None, words: str) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text(text)
+    with pytest.raises(RobotFileError) as e:
+        calibration.apply(robots.load("so101"), path)
+    assert e.value.field == field and words in e.value.problem, e.value
+
+
+def test_a_hobby_servo_arm_has_nothing_to_calibrate_here(tmp_path: Path) -> None:
+    path = tmp_path / "calibration.toml"
+    path.write_text("[base_yaw]\nzero = 1500\n")
+    with pytest.raises(RobotFileError) as e:
+        calibration.apply(robots.load("insomniac"), path)
+    assert "not a bus servo of insomniac (none)" in e.value.problem
