@@ -488,10 +488,11 @@ def test_a_stalled_adapter_never_catches_up_by_jumping(
         before = Motion(m.times[m.times <= stalled], m.position[m.times <= stalled], 0)
         after = m.times >= stalled + 1.0
         resumed = Motion(m.times[after], m.position[after], 0)
-        for part in (before, resumed):
+        for label, part in (("before the stall", before), ("after it", resumed)):
             rr = ratios(arm, part, 0.02)
-            assert rr.velocity <= SPEED_BAR and rr.acceleration <= ACCEL_BAR and rr.outside <= 1e-9, rr
-            assert rr.held <= HELD_MAX, rr
+            said = (label, rr, (tmp_path / "adapter.log").read_text()[-3000:])  # (what the adapter said, if it fails)
+            assert rr.velocity <= SPEED_BAR and rr.acceleration <= ACCEL_BAR and rr.outside <= 1e-9, said
+            assert rr.held <= HELD_MAX, said
         assert m.jumps == 0
         # the stall: the board finished its move in hand (within the lead and a period) and held there:
         # the one stop at speed an SSC-32 move cannot soften (docs/adapters.md)
