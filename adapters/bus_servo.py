@@ -69,6 +69,7 @@ GOAL_TOLERANCE = 0.02  # [rad] how near its goal a joint must be SETTLE after th
 # before that when every servo is within a count of its goal
 GRIPPER_SPEED = 2000  # [counts/s] the gripper's
 READ_WAIT = 0.001  # [s] the longest one read of the port blocks (the SDKs' packet timeouts still apply)
+START_SLACK = 0.02  # [rad] how far outside its limits the arm may be found at start (as the SSC-32's)
 FRESH = 0.002  # [s] a reading this recent answers measure() without another read
 
 
@@ -267,6 +268,14 @@ class BusServoAdapter(Adapter):
         )
         if not self._read():
             raise ControllerFault(f"the servos on {self.bus.port} answer a ping but not a read")
+        lim = self.robot.limits
+        if not lim.contains(self._position, tol=START_SLACK):  # (its torque still off: nothing moved)
+            bad = lim.violations(self._position, tol=START_SLACK)
+            raise ControllerFault(
+                f"{self.robot.name} is outside its limits ({bad[0].message}): with its servos limp, move "
+                "the arm inside them by hand and start again (a servo that reads so where the arm is inside "
+                "needs calibrating: armd calibrate)"
+            )
         M = self.robot.actuators.M
         for k, s in enumerate(self.servos):  # (a linkage's servo: the sum of its joints')
             self.bus.set_limits(s.id, float(np.abs(M[k]) @ self._amax) * s.counts_per_rad)
@@ -274,14 +283,6 @@ class BusServoAdapter(Adapter):
         self.bus.write_goals(here, self._speeds(np.zeros(self.robot.nq)))  # (enabled, a servo drives to its goal)
         for i in self.ids:
             self.bus.set_torque(i, True)
-        q = self._position
-        if not self.robot.limits.contains(q, tol=0.02):
-            bad = self.robot.limits.violations(q, tol=0.02)
-            log.warning(
-                "%s is outside its limits (%s): it holds there; a move back inside is planned from there",
-                self.robot.name,
-                bad[0].message,
-            )
 
     # -- the bus ------------------------------------------------------------------------------
 

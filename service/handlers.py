@@ -141,7 +141,9 @@ class Handlers:
     def move(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         req = check(MOVE, req, arm.joint_names)
         known = self.book.current(arm)
-        traj = self._plan(arm, req, known.state, deadline)  # a bad request is told so, adapter or not
+        traj = self._plan(
+            arm, req, _at_the_limits(arm, known.state), deadline
+        )  # (a bad request is told so, adapter or not)
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would execute the move", robot=arm.name)
         if not known.homed:
@@ -164,7 +166,7 @@ class Handlers:
                 raise
             # The adapter's word on where the arm is beat the service's (its reports came late):
             # planned once more from there, and checked by the adapter again.
-            traj = self._plan(arm, req, there, deadline)
+            traj = self._plan(arm, req, _at_the_limits(arm, there), deadline)
             msg = {**self._message(arm, traj, "move"), **({"target": msg["target"]} if "target" in msg else {})}
             deadline.check()
             adapter = self.publish(arm, msg)
@@ -269,7 +271,7 @@ class Handlers:
         if len(via) > self.limits.max_waypoints:
             raise BadRequest(f"at most {self.limits.max_waypoints} waypoints", field="via")
         if start is None:
-            start = self.book.current(arm).state
+            start = _at_the_limits(arm, self.book.current(arm).state)
         path = req.get("path", "joint")
         speed = req.get("speed", 1.0)
         return planning.plan(
@@ -312,6 +314,13 @@ def _obstacle(spec: Mapping[str, Any], field: str, taken: set[str]) -> Obstacle:
         tuple(float(x) for x in spec["position"]),  # type: ignore[arg-type]
         tuple(float(x) for x in spec.get("rpy", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
     )
+
+
+def _at_the_limits(arm: Robot, state: JointState) -> JointState:
+    """Where the arm is, as a plan may start from it: a measured position a hair outside a box
+    limit (a servo settled a count past a goal at its limit) taken at the limit. The state book
+    keeps out reports farther off (``state.implausible``); a start a user gives is not clipped."""
+    return JointState(arm.limits.clip(state.position), state.velocity, state.acceleration)
 
 
 def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:

@@ -119,6 +119,29 @@ def test_start_up_holds_the_arm_where_it_is_found(service: object, adapter_sessi
             adapter.close()
 
 
+def test_an_arm_found_outside_its_limits_is_refused_and_one_a_count_past_is_moved(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
+    """shoulder_pan found 0.15 rad past its limit: the adapter does not start (its servos limp:
+    nothing moved) and says what to do. Found 0.005 rad past (a servo settled a count or three
+    beyond a goal at its limit): the service plans from the limit, and the arm moves."""
+    arm = robots.load("so101")
+    per = 4096 / (2 * np.pi)
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6], positions={1: 2048 + 2.07 * per}) as emu:
+        with pytest.raises(ControllerFault) as e:
+            FeetechAdapter(adapter_session, arm, emu.port)
+        assert "shoulder_pan" in e.value.message and "by hand" in e.value.message
+        assert emu.register(1, 40) == 0
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6], positions={1: 2048 + 1.925 * per}) as emu:
+        adapter = FeetechAdapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            client.move("so101", [0.0, 0.0, 0.0, 0.0, 0.0], wait=True, wait_timeout=15)
+            assert np.max(np.abs(joints_of(arm, emu))) < 0.01
+        finally:
+            adapter.close()
+
+
 def test_a_blocked_joint_aborts_the_move_and_stops_the_arm(
     client: ArmClient, service: object, adapter_session: zenoh.Session
 ) -> None:
