@@ -215,15 +215,22 @@ def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
 
 
 def _pass_velocity(prev: FloatArray, via: FloatArray, nxt: FloatArray, limits: Limits) -> FloatArray:
-    """Pass-through velocity at ``via`` [rad/s]: zero where the joint turns back or rests,
-    otherwise the smaller of the two neighbouring segments' rough mean speeds (each segment
-    timed by its slowest joint), capped at half the velocity limit."""
+    """Pass-through velocity at ``via`` [rad/s]: along the path's tangent there (the way from
+    ``prev`` to ``nxt`` over the two segments' rough times, each timed by its slowest joint at
+    its velocity limit), slowed as a whole to half the velocity limits and so that each joint
+    could brake from it to rest within a quarter of the shorter of its two segments (a faster
+    pass overshoots the waypoint and comes back to it, slower overall and off the path); zero
+    for a joint that turns back or rests there."""
     d1, d2 = via - prev, nxt - via
     t1 = float(np.max(np.abs(d1) / limits.velocity)) or 1.0
     t2 = float(np.max(np.abs(d2) / limits.velocity)) or 1.0
     same = (np.sign(d1) == np.sign(d2)) & (d1 != 0) & (d2 != 0)
-    speed = np.minimum(np.abs(d1) / t1, np.abs(d2) / t2)
-    return np.where(same, np.sign(d2) * np.minimum(speed, 0.5 * limits.velocity), 0.0)
+    v = np.where(same, (d1 + d2) / (t1 + t2), 0.0)
+    room = np.minimum(np.abs(d1), np.abs(d2))
+    cap = np.minimum(0.5 * limits.velocity, np.sqrt(0.5 * limits.acceleration * room))  # (v^2 / 2a = room / 4)
+    moving = np.abs(v) > 0.0
+    scale = float(np.min(cap[moving] / np.abs(v[moving]), initial=1.0)) if np.any(moving) else 1.0
+    return v * min(scale, 1.0)
 
 
 class _Calculators(threading.local):
