@@ -46,6 +46,7 @@ from armd import planning
 from armd.errors import ArmdError, BadRequest, ControllerFault, PositionUnknown, StartMismatch
 from armd.planning import JointState
 from armd.robots import Robot
+from armd.robots import calibration as robots_calibration
 from armd.service.protocol import encode
 
 from .trajectory_message import MAX_BYTES, Command, motion, parse
@@ -87,6 +88,25 @@ def state_dir_default() -> Path:
         return Path(os.environ["ARMD_STATE_DIR"])
     xdg = os.environ.get("XDG_STATE_HOME")
     return (Path(xdg) if xdg else Path.home() / ".local" / "state") / "armd"
+
+
+def calibration_file(robot: Robot, state_dir: str | Path | None = None) -> Path:
+    """Where ``armd calibrate`` keeps ``robot``'s calibration: beside the adapters' other state
+    (``state_dir``, else :func:`state_dir_default`), ``<robot>.calibration.toml``; the arm's
+    folder may be the package's own."""
+    return Path(state_dir or state_dir_default()) / f"{robot.name}.{robots_calibration.FILE}"
+
+
+def calibrated(robot: Robot, calibration: str | Path | None = None, state_dir: str | Path | None = None) -> Robot:
+    """``robot`` with its calibration (``armd calibrate``) applied: the file ``calibration``, else
+    :func:`calibration_file` if there is one, else as it is; checked against its limits
+    (:class:`RobotFileError` naming the servo) before any port is opened."""
+    path = Path(calibration) if calibration else calibration_file(robot, state_dir)
+    if not calibration and not path.exists():
+        return robot
+    out = robots_calibration.apply(robot, path)
+    log.info("%s: calibration from %s", robot.name, path)
+    return out
 
 
 LOOP_PRIORITY = 20  # SCHED_FIFO priority of an adapter's control loop (ros2_control's controller manager uses 50)

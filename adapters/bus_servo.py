@@ -51,9 +51,8 @@ import zenoh
 from armd.errors import ControllerFault
 from armd.planning import JointState
 from armd.robots import BusServo, Robot
-from armd.robots import calibration as robots_calibration
 
-from .base import Adapter, actuators_of, state_dir_default
+from .base import Adapter, actuators_of, calibrated
 from .trajectory_message import Command, FloatArray
 
 log = logging.getLogger(__name__)
@@ -190,6 +189,30 @@ class SdkBus(Bus):
             log.debug("close failed", exc_info=True)
 
 
+def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
+    """Every servo of ``servos`` (and ``robot``'s gripper) must answer a ping on ``bus``, else
+    :class:`ControllerFault` naming the ids that did not, and their joints."""
+    gripper_id = robot.gripper.channel if robot.gripper is not None else None
+    wanted = [*(s.id for s in servos), *([gripper_id] if gripper_id is not None else [])]
+    models = {i: bus.ping(i) for i in wanted}
+    silent = [i for i, m in models.items() if m is None]
+    if silent:
+        names = {s.id: s.name for s in servos}
+        if gripper_id is not None:
+            names[gripper_id] = "gripper"
+        raise ControllerFault(
+            f"no answer from servo id {', '.join(f'{i} ({names[i]})' for i in silent)} on {bus.port}: "
+            "check its cable, its power and its id (the arm's robot.toml: [[actuators]] id)"
+        )
+    log.info(
+        "%s: %d servos answer on %s (models %s)",
+        robot.name,
+        len(wanted),
+        bus.port,
+        ", ".join(f"{i}: {m}" for i, m in models.items()),
+    )
+
+
 class BusServoAdapter(Adapter):
     """Drives ``robot``'s bus servos on ``bus``."""
 
@@ -248,24 +271,7 @@ class BusServoAdapter(Adapter):
     # -- start-up -------------------------------------------------------------------------
 
     def _start_up(self, amap: object) -> None:
-        wanted = [*self.ids, *([self.gripper_id] if self.gripper_id is not None else [])]
-        models = {i: self.bus.ping(i) for i in wanted}
-        silent = [i for i, m in models.items() if m is None]
-        if silent:
-            names = {s.id: s.name for s in self.servos}
-            if self.gripper_id is not None:
-                names[self.gripper_id] = "gripper"
-            raise ControllerFault(
-                f"no answer from servo id {', '.join(f'{i} ({names[i]})' for i in silent)} on {self.bus.port}: "
-                "check its cable, its power and its id (the arm's robot.toml: [[actuators]] id)"
-            )
-        log.info(
-            "%s: %d servos answer on %s (models %s)",
-            self.robot.name,
-            len(wanted),
-            self.bus.port,
-            ", ".join(f"{i}: {m}" for i, m in models.items()),
-        )
+        ping_all(self.bus, self.robot, self.servos)
         if not self._read():
             raise ControllerFault(f"the servos on {self.bus.port} answer a ping but not a read")
         lim = self.robot.limits
@@ -462,13 +468,6 @@ class BusServoAdapter(Adapter):
         self.bus.close()
 
 
-def calibration_file(robot: Robot) -> Path:
-    """Where ``armd calibrate`` keeps ``robot``'s calibration: beside the adapters' other state
-    (``$ARMD_STATE_DIR``, ...), ``<robot>.calibration.toml``; the arm's folder may be the
-    package's own."""
-    return state_dir_default() / f"{robot.name}.{robots_calibration.FILE}"
-
-
 class SdkBusAdapter(BusServoAdapter):
     """A bus-servo adapter on its vendor's :class:`SdkBus` (``bus_type``): ``robot``'s servos on
     ``port`` at ``baud`` (default: the arm's ``[controller] baud``, else 1 Mbaud), or on ``bus``,
@@ -492,10 +491,7 @@ class SdkBusAdapter(BusServoAdapter):
     ) -> None:
         actuators_of(robot, BusServo, self.bus_type.name)  # (an arm it cannot drive: refused before the port is opened)
         # the arm's calibration (armd calibrate), if it has one: checked against its limits before the port is opened
-        cal = Path(calibration) if calibration else calibration_file(robot)
-        if calibration or cal.exists():
-            robot = robots_calibration.apply(robot, cal)
-            log.info("%s: calibration from %s", robot.name, cal)
+        robot = calibrated(robot, calibration)
         if bus is None:
             bus = self.bus_type(port, int(baud or robot.controller.get("baud", 1_000_000)))  # type: ignore[call-overload]
         super().__init__(session, robot, bus, prefix=prefix, state_hz=state_hz, lead=lead, **options)

@@ -70,7 +70,7 @@ from armd.errors import BadRequest, ControllerFault
 from armd.planning import JointState
 from armd.robots import Robot, Servo
 
-from .base import actuators_of, state_dir_default
+from .base import actuators_of, calibrated, state_dir_default
 from .serial_port import SerialAdapter
 from .trajectory_message import Command, FloatArray
 
@@ -132,7 +132,10 @@ class SSC32Adapter(SerialAdapter):
         state_dir: str | Path | None = None,
         lead: float = LEAD,
         serial_port: serial.SerialBase | None = None,
+        calibration: str | Path | None = None,
     ) -> None:
+        actuators_of(robot, Servo, "SSC-32")  # (an arm it cannot drive: refused before its calibration is read)
+        robot = calibrated(robot, calibration, state_dir)  # (armd calibrate's centre pulses and directions)
         self.channels = [a.channel for a in actuators_of(robot, Servo, "SSC-32")]
         self.baud = int(baud or robot.controller.get("baud", 9600))  # type: ignore[call-overload]
         if self.baud <= 0:

@@ -100,6 +100,20 @@ def network_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--prefix", default="armd", help="key expression prefix (default armd)")
 
 
+BUS_SERVOS = {"feetech": "Feetech", "dynamixel": "Dynamixel"}  # the bus-servo adapters: their vendors
+
+
+def open_bus(kind: str, port: str, baud: int) -> Any:
+    """The vendor's bus ``kind`` (a key of :data:`BUS_SERVOS`) on ``port`` at ``baud``, through its SDK."""
+    if kind == "feetech":
+        from armd.adapters.feetech import FeetechBus
+
+        return FeetechBus(port, baud)
+    from armd.adapters.dynamixel import DynamixelBus
+
+    return DynamixelBus(port, baud)
+
+
 def signals() -> threading.Event:
     """An event set by SIGTERM or SIGINT (Ctrl-C)."""
     import signal

@@ -11,7 +11,17 @@ from typing import Any
 from armd.errors import ArmdError, BadRequest
 from armd.robots import Robot
 
-from .common import all_robots, network_args, open_session, robot_named, signals, wait_for_signal, where
+from .common import (
+    BUS_SERVOS,
+    all_robots,
+    network_args,
+    open_bus,
+    open_session,
+    robot_named,
+    signals,
+    wait_for_signal,
+    where,
+)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -55,9 +65,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-BUS_SERVOS = {"feetech": "Feetech", "dynamixel": "Dynamixel"}  # the bus-servo adapters: their vendors
-
-
 def cmd_adapter(args: argparse.Namespace) -> int:
     """The port first (a missing or busy one: one line naming it, exit 1), then Zenoh (retried
     until a router answers), then the adapter."""
@@ -76,14 +83,7 @@ def cmd_adapter(args: argparse.Namespace) -> int:
 
                 actuators_of(arm, BusServo, BUS_SERVOS[args.kind])
                 rate = args.baud or int(arm.controller.get("baud", 1_000_000))  # type: ignore[call-overload]
-                if args.kind == "feetech":
-                    from armd.adapters.feetech import FeetechBus
-
-                    port = FeetechBus(args.port, rate)
-                else:
-                    from armd.adapters.dynamixel import DynamixelBus
-
-                    port = DynamixelBus(args.port, rate)
+                port = open_bus(args.kind, args.port, rate)
             else:
                 baud = args.baud or int(arm.controller.get("baud", 115200))  # type: ignore[call-overload]
                 port = open_port(args.port, baud, 0.5, 0.5, exclusive=True)
@@ -178,6 +178,7 @@ def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: obje
             prefix=args.prefix,
             state_dir=args.state_dir,
             serial_port=port,
+            calibration=args.calibration,
         )
     from armd.adapters.grbl import GrblAdapter
 
@@ -309,7 +310,7 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--calibration",
-        help="feetech, dynamixel: the arm's calibration.toml "
+        help="ssc32, feetech, dynamixel: the arm's calibration.toml, from armd calibrate "
         "(default: <state dir>/<robot>.calibration.toml, if it exists)",
     )
     known = p.add_mutually_exclusive_group()

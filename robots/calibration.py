@@ -8,6 +8,12 @@ The file, ``calibration.toml``, has one table per actuator, by name::
     direction = -1       # the count's sign against the joint's angle
     range = [812, 3290]  # the counts the joint was seen to reach
 
+and, for a gripper on the bus, its counts closed and open::
+
+    [gripper]
+    closed = 2010
+    open = 3050
+
 It is checked against the arm at load: every actuator named must be a bus servo of the arm,
 and the joint limits must map inside the range measured (a calibration that says the arm
 cannot reach what its URDF allows is refused: narrow the limits, or calibrate again).
@@ -25,7 +31,7 @@ import tomllib
 
 from armd.errors import RobotFileError
 
-from .actuators import ActuatorMap, BusServo
+from .actuators import ActuatorMap, BusServo, Gripper, Servo
 from .robot import Robot
 
 FILE = "calibration.toml"
@@ -44,46 +50,117 @@ def read(path: Path) -> dict[str, dict[str, Any]]:
 def apply(robot: Robot, path: Path) -> Robot:
     """A copy of ``robot`` whose bus servos take the calibration in ``path``; else
     :class:`RobotFileError` naming the file, the actuator and the problem."""
-    data = read(path)
+    return apply_tables(robot, read(path), str(path))
+
+
+def apply_tables(robot: Robot, data: dict[str, Any], source: str) -> Robot:
+    """:func:`apply`, of the tables ``data`` (a file's, or just measured: ``source`` names it)."""
+    out = copy.copy(robot)
+    data = dict(data)
+    if "gripper" in data:
+        out.gripper = _gripper(robot, data.pop("gripper"), source)
     servos = {a.name: (k, a) for k, a in enumerate(robot.actuators.actuators)}
     acts = list(robot.actuators.actuators)
     for name, table in data.items():
-        if name not in servos or not isinstance(servos[name][1], BusServo):
-            bus = [n for n, (_, a) in servos.items() if isinstance(a, BusServo)]
-            raise RobotFileError(str(path), name, f"is not a bus servo of {robot.name} ({', '.join(bus) or 'none'})")
-        if not isinstance(table, dict) or set(table) - {"zero", "direction", "range"}:
-            raise RobotFileError(str(path), name, "takes zero, direction and range only")
+        if name not in servos or not isinstance(servos[name][1], (BusServo, Servo)):
+            ours = [n for n, (_, a) in servos.items() if isinstance(a, (BusServo, Servo))]
+            raise RobotFileError(source, name, f"is not a servo of {robot.name} ({', '.join(ours) or 'none'})")
         k, servo = servos[name]
-        assert isinstance(servo, BusServo)
-        try:
-            zero = float(table.get("zero", servo.zero))
-            direction = int(table.get("direction", servo.direction))
-            lo, hi = (float(x) for x in table.get("range", servo.count_range))
-        except (TypeError, ValueError) as e:
-            raise RobotFileError(str(path), name, f"zero, direction and range must be numbers: {e}") from None
-        if direction not in (1, -1) or not lo < hi:
-            raise RobotFileError(str(path), name, "direction must be 1 or -1, and range [lower, upper] counts")
-        new = dataclasses.replace(servo, zero=zero, direction=direction, count_range=(lo, hi))
-        ends = sorted(float(new.to_command(np.array(x))) for x in servo.angle_range)
-        if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
-            a, b = (float(new.to_angle(np.array(c))) for c in (lo, hi))
-            raise RobotFileError(
-                str(path),
-                name,
-                f"contradicts the joint limits: the arm was seen to reach [{min(a, b):.4f}, {max(a, b):.4f}] rad, "
-                f"its limits allow [{servo.angle_range[0]:.4f}, {servo.angle_range[1]:.4f}] rad (counts "
-                f"[{ends[0]:.0f}, {ends[1]:.0f}] against [{lo:.0f}, {hi:.0f}]): calibrate again, or narrow the limits",
-            )
-        acts[k] = new
-    out = copy.copy(robot)
+        acts[k] = _servo(servo, table, source) if isinstance(servo, Servo) else _bus_servo(servo, table, source)  # type: ignore[arg-type]
     out.actuators = ActuatorMap(tuple(acts), robot.actuators.M, robot.actuators.b)
     return out
 
 
-def write(path: Path, values: dict[str, tuple[float, int, tuple[float, float]]]) -> None:
-    """Write ``{actuator: (zero, direction, (low, high))}`` to ``path``."""
+def _bus_servo(servo: BusServo, table: object, source: str) -> BusServo:
+    """``servo`` with its measured zero, direction and range."""
+    name = servo.name
+    if not isinstance(table, dict) or set(table) - {"zero", "direction", "range"}:
+        raise RobotFileError(source, name, "takes zero, direction and range only")
+    try:
+        zero = float(table.get("zero", servo.zero))
+        direction = int(table.get("direction", servo.direction))
+        lo, hi = (float(x) for x in table.get("range", servo.count_range))
+    except (TypeError, ValueError) as e:
+        raise RobotFileError(source, name, f"zero, direction and range must be numbers: {e}") from None
+    if direction not in (1, -1) or not lo < hi:
+        raise RobotFileError(source, name, "direction must be 1 or -1, and range [lower, upper] counts")
+    new = dataclasses.replace(servo, zero=zero, direction=direction, count_range=(lo, hi))
+    ends = sorted(float(new.to_command(np.array(x))) for x in servo.angle_range)
+    if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
+        a, b = (float(new.to_angle(np.array(c))) for c in (lo, hi))
+        raise RobotFileError(
+            source,
+            name,
+            f"contradicts the joint limits: the arm was seen to reach [{min(a, b):.4f}, {max(a, b):.4f}] rad, "
+            f"its limits allow [{servo.angle_range[0]:.4f}, {servo.angle_range[1]:.4f}] rad (counts "
+            f"[{ends[0]:.0f}, {ends[1]:.0f}] against [{lo:.0f}, {hi:.0f}]): calibrate again, or narrow the limits",
+        )
+    return new
+
+
+def _servo(servo: Servo, table: object, source: str) -> Servo:
+    """``servo`` (an SSC-32 channel) with its measured centre pulse and direction."""
+    name = servo.name
+    if not isinstance(table, dict) or set(table) - {"centre_pulse", "direction"}:
+        raise RobotFileError(source, name, "takes centre_pulse and direction only")
+    try:
+        centre = float(table.get("centre_pulse", servo.centre_pulse))
+        direction = int(table.get("direction", servo.direction))
+    except (TypeError, ValueError) as e:
+        raise RobotFileError(source, name, f"centre_pulse and direction must be numbers: {e}") from None
+    if direction not in (1, -1) or not np.isfinite(centre):
+        raise RobotFileError(source, name, "direction must be 1 or -1, and centre_pulse a pulse [us]")
+    new = dataclasses.replace(servo, centre_pulse=centre, direction=direction)
+    lo, hi = servo.pulse_range
+    ends = sorted(float(new.to_command(np.array(x))) for x in servo.angle_range)
+    if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
+        raise RobotFileError(
+            source,
+            name,
+            f"contradicts the joint limits: centred at {centre:g} us, its limits [{servo.angle_range[0]:.4f}, "
+            f"{servo.angle_range[1]:.4f}] rad need pulses [{ends[0]:.0f}, {ends[1]:.0f}] us, beyond the servo's "
+            f"[{lo:g}, {hi:g}]: calibrate again, or narrow the limits",
+        )
+    return new
+
+
+def _gripper(robot: Robot, table: object, source: str) -> Gripper:
+    """The arm's gripper with the counts measured closed and open."""
+    if robot.gripper is None or not robot.actuators.actuators or not isinstance(robot.actuators.actuators[0], BusServo):
+        raise RobotFileError(source, "gripper", f"{robot.name} has no gripper on a bus")
+    if not isinstance(table, dict) or set(table) != {"closed", "open"}:
+        raise RobotFileError(source, "gripper", "takes closed and open [counts], both")
+    try:
+        closed, opened = float(table["closed"]), float(table["open"])
+    except (TypeError, ValueError) as e:
+        raise RobotFileError(source, "gripper", f"closed and open must be numbers: {e}") from None
+    if not (np.isfinite(closed) and np.isfinite(opened)) or closed == opened:
+        raise RobotFileError(
+            source, "gripper", f"closed and open must be two different counts, got {closed:g}, {opened:g}"
+        )
+    return dataclasses.replace(robot.gripper, closed=closed, open=opened)
+
+
+def write_servos(path: Path, values: dict[str, tuple[float, int]]) -> None:
+    """Write ``{actuator: (centre_pulse, direction)}`` (an SSC-32 arm's jog) to ``path``."""
+    lines = ["# armd calibrate: each servo's centre pulse and direction, as jogged on the arm", ""]
+    for name, (centre, direction) in values.items():
+        lines += [f"[{name}]", f"centre_pulse = {centre:g}", f"direction = {direction}", ""]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines))
+
+
+def write(
+    path: Path,
+    values: dict[str, tuple[float, int, tuple[float, float]]],
+    gripper: tuple[float, float] | None = None,
+) -> None:
+    """Write ``{actuator: (zero, direction, (low, high))}`` (and the gripper's ``(closed, open)``
+    counts) to ``path``."""
     lines = ["# armd calibrate: each bus servo as measured on the arm (robots/calibration.py)", ""]
     for name, (zero, direction, (lo, hi)) in values.items():
         lines += [f"[{name}]", f"zero = {zero:g}", f"direction = {direction}", f"range = [{lo:g}, {hi:g}]", ""]
+    if gripper is not None:
+        lines += ["[gripper]", f"closed = {gripper[0]:g}", f"open = {gripper[1]:g}", ""]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines))

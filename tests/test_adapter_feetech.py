@@ -217,7 +217,7 @@ def test_a_calibration_maps_the_servos_and_one_that_contradicts_the_limits_is_re
     arm's calibration (in the state dir, where ``armd calibrate`` keeps it), the adapter reads
     the joint at 0 where the servo is at 2300, and drives it the right way. A calibration whose
     range does not cover the joint limits is refused before anything moves."""
-    from armd.adapters.bus_servo import calibration_file
+    from armd.adapters.base import calibration_file
     from armd.errors import RobotFileError
     from armd.robots import calibration
 

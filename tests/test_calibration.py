@@ -28,7 +28,9 @@ def test_a_calibration_overrides_the_factory_values_and_round_trips(tmp_path: Pa
 @pytest.mark.parametrize(
     ("text", "field", "words"),
     [
-        ("[knee]\nzero = 2048\n", "knee", "not a bus servo of so101"),
+        ("[knee]\nzero = 2048\n", "knee", "not a servo of so101"),
+        ("[gripper]\nclosed = 2048\n", "gripper", "takes closed and open"),
+        ("[gripper]\nclosed = 2048\nopen = 2048\n", "gripper", "two different counts"),
         ("[elbow_flex]\ndirection = 2\n", "elbow_flex", "direction must be 1 or -1"),
         ("[elbow_flex]\nzero = 'middle'\n", "elbow_flex", "must be numbers"),
         ("[elbow_flex]\noffset = 3\n", "elbow_flex", "zero, direction and range only"),
@@ -44,9 +46,20 @@ def test_a_bad_calibration_is_refused_naming_what(tmp_path: Path, text: str, fie
     assert e.value.field == field and words in e.value.problem, e.value
 
 
-def test_a_hobby_servo_arm_has_nothing_to_calibrate_here(tmp_path: Path) -> None:
+def test_a_hobby_servo_takes_its_centre_pulse_and_direction_within_its_range(tmp_path: Path) -> None:
+    """An SSC-32 arm's calibration (armd calibrate --adapter ssc32): a centre pulse and a
+    direction per servo; one whose limits would then need a pulse beyond the servo's is refused."""
+    arm = robots.load("insomniac")
     path = tmp_path / "calibration.toml"
-    path.write_text("[base_yaw]\nzero = 1500\n")
-    with pytest.raises(RobotFileError) as e:
-        calibration.apply(robots.load("insomniac"), path)
-    assert "not a bus servo of insomniac (none)" in e.value.problem
+    calibration.write_servos(path, {"shoulder": (1530.0, 1), "elbow": (1480.0, 1)})
+    cal = calibration.apply(arm, path)
+    assert cal.actuators.commands(np.array([0.0, np.pi / 2, -np.pi / 2, 0.0, 0.0])).tolist()[1:3] == [1530, 1480]
+    for text, words in [
+        ("[base_yaw]\nzero = 1500\n", "takes centre_pulse and direction only"),
+        ("[base_yaw]\ncentre_pulse = 1520\n", "contradicts the joint limits"),  # (its ±90 deg need 500..2500 us)
+        ("[gripper]\nclosed = 1\nopen = 2\n", "no gripper on a bus"),
+    ]:
+        path.write_text(text)
+        with pytest.raises(RobotFileError) as e:
+            calibration.apply(arm, path)
+        assert words in e.value.problem, e.value
