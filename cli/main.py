@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 from armd.errors import ArmdError
 
-from . import calls, daemons, offline, tools
+from . import calls, daemons, offline, teach, tools
 from .common import LOG_LEVELS, set_up_logging
 
 EXTRAS = {
@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     daemons.register(sub, log_args)
     calls.register(sub, log_args)
     tools.register(sub, log_args)
+    teach.register(sub, log_args)
     return parser
 
 

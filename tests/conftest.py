@@ -172,3 +172,55 @@ def certs(tmp_path: Path) -> Path:
     out = tmp_path / "certs"
     subprocess.run(["sh", str(DOCS / "make-certs.sh"), str(out)], check=True, capture_output=True, timeout=60)
     return out
+
+
+# -- a command line that asks: answered line by line --------------------------------------------
+
+import queue  # noqa: E402
+import sys  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def converse(
+    args: list[str], answer: Callable[[str], str], *, env: dict[str, str] | None = None, timeout: float = 120.0
+) -> tuple[int, list[str], str]:
+    """``armd ARGS`` run as a user runs it, each prompt it prints (a line starting ``> ``)
+    answered by ``answer(prompt)`` (after doing what the prompt asks): its exit code, every line
+    it printed and its stderr."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", *args],
+        cwd=ROOT,
+        env={**os.environ, **(env or {})},
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdin is not None and proc.stdout is not None and proc.stderr is not None
+    lines: queue.Queue[str | None] = queue.Queue()
+    err: list[str] = []
+    threading.Thread(target=lambda: [lines.put(x) for x in proc.stdout] + [lines.put(None)], daemon=True).start()  # type: ignore[union-attr]
+    threading.Thread(target=lambda: err.append(proc.stderr.read()), daemon=True).start()  # type: ignore[union-attr]
+    said: list[str] = []
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            line = lines.get(timeout=max(deadline - time.monotonic(), 0.01))
+            if line is None:
+                break
+            said.append(line.rstrip("\n"))
+            if line.startswith("> "):
+                reply = answer(line[2:].strip())
+                try:
+                    proc.stdin.write(reply + "\n")
+                    proc.stdin.flush()
+                except BrokenPipeError:
+                    pass
+        code = proc.wait(timeout=max(deadline - time.monotonic(), 1.0))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    time.sleep(0.05)
+    return code, said, "".join(err)

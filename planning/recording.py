@@ -1,0 +1,230 @@
+"""A recording of an arm moved by hand (``armd record``) and the way it is replayed
+(``armd replay``): checked, smoothed, reduced to via points, split where the gripper moves.
+
+The file is JSON (docs/adapters.md, "Teach and replay")::
+
+    {"format": "armd-recording", "version": 1, "robot": "so101",
+     "joints": ["shoulder_pan", ...], "unit": "rad",
+     "t": [0.0, 0.003, ...],                    # [s] from the start, increasing
+     "q": [[0.01, -1.2, ...], ...],             # [rad] one joint vector a reading
+     "gripper": [0.0, 0.0, ...]}                # opening in [0, 1] a reading, or null
+
+A replay is the recording's path, not its timing: each part between gripper changes is one
+jerk-limited ``move`` through its via points, timed by the service within every limit.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from armd.errors import BadRequest
+from armd.robots import Robot
+
+from .state import FloatArray
+
+FORMAT = "armd-recording"
+VERSION = 1
+LIMIT_SLACK = 0.02  # [rad] how far outside a limit a reading may be (a servo's noise at the end): brought inside
+JUMP_STEP = 0.05  # [rad] a change between two readings this large ...
+JUMP_SPEED = 15.0  # [rad/s] ... and this fast is a jump (no hand turns a joint so): a glitch, a lost calibration
+SMOOTH = 0.05  # [s] the moving average's window (a count's noise smoothed out)
+TOLERANCE = 0.01  # [rad] how far the via points' path may leave the smoothed recording, per joint
+GRIPPER_STEP = 0.1  # a change of the gripper's opening this large is a gripper action
+
+
+@dataclass(frozen=True)
+class Recording:
+    """``position[k]`` [rad] of ``joints`` at ``times[k]`` [s]; ``gripper[k]`` its opening."""
+
+    robot: str
+    joints: tuple[str, ...]
+    times: FloatArray
+    position: FloatArray
+    gripper: FloatArray | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT,
+            "version": VERSION,
+            "robot": self.robot,
+            "joints": list(self.joints),
+            "unit": "rad",
+            "t": [round(float(t), 6) for t in self.times],
+            "q": [[round(float(x), 6) for x in row] for row in self.position],
+            "gripper": None if self.gripper is None else [round(float(g), 4) for g in self.gripper],
+        }
+
+    def save(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_json()) + "\n")
+
+    @classmethod
+    def from_json(cls, data: object) -> Recording:
+        """A recording from its JSON form, its shape checked (else :class:`BadRequest` naming the field)."""
+        if not isinstance(data, dict):
+            raise BadRequest("a recording is a JSON object", field="recording")
+        if data.get("format") != FORMAT or data.get("version") != VERSION:
+            raise BadRequest(
+                f"not an armd recording: format {data.get('format')!r} version {data.get('version')!r} "
+                f"(expected {FORMAT!r} version {VERSION})",
+                field="format",
+            )
+        if data.get("unit", "rad") != "rad":
+            raise BadRequest(f"unit must be 'rad', got {data.get('unit')!r}", field="unit")
+        robot, joints = data.get("robot"), data.get("joints")
+        if not isinstance(robot, str) or not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
+            raise BadRequest("robot must be a name and joints a list of names", field="robot")
+        try:
+            t = np.asarray(data.get("t"), dtype=float)
+            q = np.asarray(data.get("q"), dtype=float)
+            g = None if data.get("gripper") is None else np.asarray(data["gripper"], dtype=float)
+        except (TypeError, ValueError) as e:
+            raise BadRequest(f"t, q and gripper must be numbers: {e}", field="q") from None
+        n = len(t) if t.ndim == 1 else -1
+        if n < 2 or q.shape != (n, len(joints)) or (g is not None and g.shape != (n,)):
+            raise BadRequest(
+                f"t must list two readings or more, q one vector of {len(joints)} joints a reading and gripper "
+                f"one number a reading: t {t.shape}, q {q.shape}" + ("" if g is None else f", gripper {g.shape}"),
+                field="q",
+            )
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q)) and (g is None or np.all(np.isfinite(g)))):
+            raise BadRequest("t, q and gripper must be finite", field="q")
+        if np.any(np.diff(t) <= 0.0):
+            k = int(np.argmax(np.diff(t) <= 0.0))
+            raise BadRequest(f"t must increase: reading {k + 1} at {t[k + 1]:g} s after {t[k]:g} s", field="t")
+        if g is not None and (np.any(g < 0.0) or np.any(g > 1.0)):
+            raise BadRequest("gripper openings must be in [0, 1]", field="gripper")
+        return cls(robot, tuple(joints), t, q, g)
+
+    @classmethod
+    def load(cls, path: Path) -> Recording:
+        try:
+            data = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise BadRequest(f"cannot read the recording {path}: {e}", field="recording") from None
+        return cls.from_json(data)
+
+
+@dataclass(frozen=True)
+class Part:
+    """A stretch of a replay: a move through ``via`` to ``goal`` [rad], then the gripper to
+    ``gripper`` (None: left as it is)."""
+
+    via: list[FloatArray]
+    goal: FloatArray
+    gripper: float | None
+    start_time: float  # [s] in the recording
+    end_time: float
+
+
+def check(rec: Recording, robot: Robot) -> FloatArray:
+    """The recording's positions, once it is known to fit ``robot``: its arm and joints, every
+    reading inside the limits (within ``LIMIT_SLACK``: brought inside), no jump; else
+    :class:`BadRequest` saying which reading and joint."""
+    if rec.robot != robot.name or list(rec.joints) != list(robot.joint_names):
+        raise BadRequest(
+            f"the recording is of {rec.robot} ({', '.join(rec.joints)}), not {robot.name} "
+            f"({', '.join(robot.joint_names)})",
+            field="robot",
+        )
+    t, q = rec.times, rec.position
+    step = np.abs(np.diff(q, axis=0))
+    fast = (step > JUMP_STEP) & (step / np.diff(t)[:, None] > JUMP_SPEED)
+    if np.any(fast):
+        k, j = (int(x) for x in np.argwhere(fast)[0])
+        raise BadRequest(
+            f"a jump in the recording: {robot.joint_names[j]} from {q[k, j]:.4f} to {q[k + 1, j]:.4f} rad between "
+            f"{t[k]:.3f} s and {t[k + 1]:.3f} s ({step[k, j] / (t[k + 1] - t[k]):.0f} rad/s; a hand turns a joint "
+            f"slower than {JUMP_SPEED:g}): a lost reading or calibration; record it again",
+            field="q",
+        )
+    lim = robot.limits
+    for k, row in enumerate(q):
+        if not lim.contains(row, tol=LIMIT_SLACK):
+            bad = lim.violations(row, tol=LIMIT_SLACK)
+            raise BadRequest(f"the reading at {t[k]:.3f} s is outside the limits: {bad[0].message}", field="q")
+    inside = np.clip(q, lim.lower, lim.upper)
+    for k, row in enumerate(inside):  # (the coupled limits, and the actuators' ranges)
+        if not lim.contains(row, tol=1e-9):
+            raise BadRequest(f"the reading at {t[k]:.3f} s is outside the limits", field="q")
+        robot.actuators.commands(row)  # (ActuatorRangeError: a BadRequest naming the actuator)
+    return inside
+
+
+def smooth(times: FloatArray, q: FloatArray, window: float = SMOOTH) -> FloatArray:
+    """``q`` averaged over ``window`` [s] about each reading (the ends kept as they are)."""
+    n = len(times)
+    out = q.copy()
+    lo = np.searchsorted(times, times - window / 2, side="left")
+    hi = np.searchsorted(times, times + window / 2, side="right")
+    csum = np.vstack([np.zeros(q.shape[1]), np.cumsum(q, axis=0)])
+    for k in range(1, n - 1):
+        a, b = lo[k], hi[k]
+        out[k] = (csum[b] - csum[a]) / (b - a)
+    return out
+
+
+def simplify(q: FloatArray, tolerance: float = TOLERANCE) -> list[int]:
+    """The indices of the fewest readings (the first and last among them) whose straight joint
+    segments stay within ``tolerance`` [rad], per joint, of every reading (Douglas-Peucker)."""
+    keep = {0, len(q) - 1}
+    stack = [(0, len(q) - 1)]
+    while stack:
+        a, b = stack.pop()
+        if b - a < 2:
+            continue
+        d = q[b] - q[a]
+        seg = q[a + 1 : b] - q[a]
+        dd = float(d @ d)
+        s = np.clip(seg @ d / dd, 0.0, 1.0) if dd > 0.0 else np.zeros(len(seg))
+        err = np.max(np.abs(seg - s[:, None] * d), axis=1)
+        k = int(np.argmax(err))
+        if err[k] > tolerance:
+            m = a + 1 + k
+            keep.add(m)
+            stack += [(a, m), (m, b)]
+    return sorted(keep)
+
+
+def parts(rec: Recording, robot: Robot, *, tolerance: float = TOLERANCE, max_via: int = 50) -> list[Part]:
+    """The replay of ``rec`` on ``robot``: checked (:func:`check`), smoothed, reduced to via points
+    within ``tolerance`` [rad] of it, split where the gripper opens or closes (by ``GRIPPER_STEP``)
+    and into moves of at most ``max_via`` via points."""
+    if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+        raise BadRequest(f"tolerance must be a positive number of radians, got {tolerance!r}", field="tolerance")
+    q = check(rec, robot)
+    q = np.clip(smooth(rec.times, q), robot.limits.lower, robot.limits.upper)
+    g = rec.gripper
+    cuts = [0]  # reading indices where a part ends: where the gripper opens or closes, and the last
+    if g is not None:
+        held = g[0]
+        for k in range(1, len(g)):
+            if abs(g[k] - held) >= GRIPPER_STEP:  # the arm stops at its pose of that moment, then the gripper moves
+                cuts.append(k)
+                held = g[k]
+    if cuts[-1] != len(q) - 1:
+        cuts.append(len(q) - 1)
+    # first, to where the recording starts (the arm may be anywhere), the gripper as it was
+    out = [Part([], q[0], None if g is None else float(g[0]), float(rec.times[0]), float(rec.times[0]))]
+    for a, b in itertools.pairwise(cuts):
+        idx = [a + i for i in simplify(q[a : b + 1], tolerance)]
+        for s in range(0, len(idx) - 1, max_via + 1):
+            chunk = idx[s : s + max_via + 2]
+            last = chunk[-1] == idx[-1]
+            out.append(
+                Part(
+                    [q[i] for i in chunk[1:-1]],
+                    q[chunk[-1]],
+                    float(g[b]) if g is not None and last else None,
+                    float(rec.times[chunk[0]]),
+                    float(rec.times[chunk[-1]]),
+                )
+            )
+    return out
