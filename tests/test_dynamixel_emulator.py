@@ -14,6 +14,7 @@ from armd.adapters.emulators.dynamixel import (
     HARDWARE_ERROR,
     MODEL_XM430_W350,
     PRESENT_POSITION,
+    PRESENT_VOLTAGE,
     PROFILE_VELOCITY,
     TORQUE,
     DynamixelEmulator,
@@ -118,3 +119,16 @@ def test_a_silent_servo_and_a_lost_reply(bus: tuple[DynamixelEmulator, object, o
     assert ph.ping(port, 3)[1] == sdk.COMM_SUCCESS  # type: ignore[attr-defined]
     emu.silence(3)
     assert ph.ping(port, 3)[1] == sdk.COMM_RX_TIMEOUT  # type: ignore[attr-defined]
+
+
+def test_a_power_cycle_keeps_the_supplys_voltage_and_the_horns_place(
+    bus: tuple[DynamixelEmulator, object, object],
+) -> None:
+    """Off and on: the RAM at its defaults (torque off), the supply's voltage what it was."""
+    emu, port, ph = bus
+    emu.set_voltage(11.1)
+    assert ph.write1ByteTxRx(port, 1, TORQUE, 1) == (sdk.COMM_SUCCESS, 0)  # type: ignore[attr-defined]
+    emu.power_cycle()
+    assert ph.read1ByteTxRx(port, 1, TORQUE)[0] == 0  # type: ignore[attr-defined]
+    assert ph.read2ByteTxRx(port, 1, PRESENT_VOLTAGE)[0] == 111  # type: ignore[attr-defined]
+    assert ph.read4ByteTxRx(port, 1, PRESENT_POSITION)[0] == 2048  # type: ignore[attr-defined]

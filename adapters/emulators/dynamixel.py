@@ -155,6 +155,7 @@ class DynamixelEmulator(BusEmulator):
         self._put(ident, MAX_POSITION, 4, 4095)
         self._put(ident, MIN_POSITION, 4, 0)
         t[SHUTDOWN] = 52
+        self.servos[ident].voltage = 12.0  # (the supply's, as the X series runs on: a power cycle keeps it)
         self._reset_ram(ident)
         return t
 
@@ -163,7 +164,6 @@ class DynamixelEmulator(BusEmulator):
         t[EEPROM_END:] = bytes(TABLE_SIZE - EEPROM_END)
         t[STATUS_LEVEL] = 2
         s = self.servos[ident]
-        s.voltage = 12.0
         self._put(ident, GOAL_POSITION, 4, round(s.position + self._offset(ident)))
         self._pending.pop(ident, None)
 
