@@ -36,17 +36,22 @@ class Arm:
         self.emu, self.arm, self.zero, self.direction, self.margin = emu, arm, zero, direction, margin
         self.servos = list(arm.actuators.actuators)
 
-    def counts(self, s: Any, q: float) -> float:
-        return self.zero[s.id] + self.direction[s.id] * q * CPR / (2 * math.pi)
+    def counts(self, k: int, a: float) -> float:
+        """Servo ``k``'s count at its actuator angle ``a`` [rad], as the arm really is."""
+        s = self.servos[k]
+        return self.zero[s.id] + self.direction[s.id] * a * CPR / (2 * math.pi)
 
     def ends(self, s: Any) -> tuple[float, float]:
         """The counts the arm reaches at its joint's limits, and a margin beyond."""
-        a, b = sorted(self.counts(s, x) for x in s.angle_range)
+        k = self.servos.index(s)
+        a, b = sorted(self.counts(k, x) for x in s.angle_range)
         return a - self.margin, b + self.margin
 
     def pose(self, q: np.ndarray) -> None:
-        for s, x in zip(self.servos, q, strict=True):
-            self.emu.move_by_hand(s.id, self.counts(s, float(x)))
+        """The arm by hand at the joint vector ``q`` (through its map: a = M q + b)."""
+        amap = self.arm.actuators
+        for k, (s, a) in enumerate(zip(self.servos, amap.M @ q + amap.b, strict=True)):
+            self.emu.move_by_hand(s.id, self.counts(k, float(a)))
 
     def sweep(self, short: str | None = None) -> None:
         """Every joint to both ends and back, in small steps (a hand's pace); ``short``: that
@@ -130,6 +135,48 @@ def test_the_so101_is_calibrated_by_hand_and_its_adapter_reads_it(
             assert adapter.robot.gripper.closed == 1500  # type: ignore[union-attr]
         finally:
             adapter.close()
+
+
+def test_a_servo_turned_round_by_its_map_and_offset_is_calibrated_right(tmp_path: Path, arm_copy: Any) -> None:
+    """A so101 whose shoulder_pan servo turns minus the joint, offset by 0.2 rad (a = -q + 0.2):
+    the zero is the count at actuator angle 0, not at the reference pose, and the direction is
+    the servo's against its angle, not the joint's."""
+    folder = arm_copy(
+        "so101",
+        toml_edits=[
+            ("joints = { shoulder_pan = 1.0 }\nid = 1", "joints = { shoulder_pan = -1.0 }\noffset = 0.2\nid = 1")
+        ],
+        as_name="so101",
+    )
+    arm = robots.load_folder(folder)
+    assert arm.actuators.M[0, 0] == -1.0 and arm.actuators.b[0] == 0.2
+    out = tmp_path / "cal.toml"
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu:
+        real = Arm(emu, arm, TRUE_ZERO, TRUE_DIRECTION)
+        code, said, err = converse(
+            [
+                "calibrate",
+                "so101",
+                "--robots-dir",
+                str(folder.parent),
+                "--adapter",
+                "feetech",
+                "--port",
+                emu.port,
+                "--output",
+                str(out),
+            ],
+            answers(real),
+        )
+        assert code == 0, (said, err)
+        data = calibration.read(out)
+        assert abs(data["shoulder_pan"]["zero"] - TRUE_ZERO[1]) <= 1 and data["shoulder_pan"]["direction"] == 1
+        # and the adapter then reads the arm's pose right, shoulder_pan included
+        cal = calibration.apply(arm, out)
+        q = np.array([0.4, -0.5, 0.6, -0.3, 1.0])
+        real.pose(q)
+        counts = np.array([emu.position(s.id) for s in real.servos])
+        assert np.allclose(cal.actuators.joints_from_commands(counts, tol=np.inf), q, atol=2e-3)
 
 
 def test_the_openmanipulator_x_is_calibrated_on_its_dynamixels(tmp_path: Path) -> None:
@@ -269,3 +316,65 @@ def test_an_ssc32_arm_is_jogged_to_its_centres_and_directions(tmp_path: Path, ad
     assert cal.actuators.actuators[1].centre_pulse == 1530  # type: ignore[union-attr]
     assert sum("past the jog's end" in line for line in said) == 1
     assert any(p.startswith("Jog base_yaw to 0.0000 rad") for p in seen)
+
+
+def jog_script(script: dict[str, list[str]], seen: list[str]) -> Any:
+    """An operator at the keyboard: each prompt answered from ``script`` by the word it names
+    (a joint, ``servo``, or a servo being trimmed), else Enter, or ``y`` to a direction."""
+
+    def answer(prompt: str) -> str:
+        seen.append(prompt)
+        words = prompt.split()
+        key = words[1] if words[0] in ("Jog", "Trim") else words[0]
+        todo = script.get(key)
+        if todo:
+            return todo.pop(0)
+        return "y" if prompt.endswith("(y/n)") else ""
+
+    return answer
+
+
+def test_a_linkage_servo_is_jogged_alone_and_asked_of_its_own_angle(tmp_path: Path) -> None:
+    """desk4's minor servo turns with major + minor: jogged on its own (major's jog leaves it
+    be), its direction asked of its own angle."""
+    out = tmp_path / "desk4.toml"
+    seen: list[str] = []
+    script = {"major": ["+", "+", "", "y"], "servo": ["-", "", "n"]}
+    with SSC32Emulator() as emu:
+        code, said, err = converse(
+            ["calibrate", "desk4", "--adapter", "ssc32", "--port", emu.port, "--output", str(out)],
+            jog_script(script, seen),
+        )
+        assert code == 0, (said, err)
+        wait_for(lambda: not emu.moving(), what="the servos still")
+        pulses = emu.pulses()
+    assert calibration.read(out) == {
+        "steer": {"centre_pulse": 1500, "direction": 1},
+        "major": {"centre_pulse": 1520, "direction": 1},
+        "minor": {"centre_pulse": 1490, "direction": -1},
+    }
+    assert any(p.startswith("Jog servo minor (its own angle: major + minor) to 0.0000 rad") for p in seen), seen
+    assert abs(pulses[1] - 1520) < 1 and abs(pulses[2] - 1490) < 1
+
+
+def test_a_jog_the_limits_cannot_take_is_refused_at_once(tmp_path: Path) -> None:
+    """desk4's major uses the servo's range down to 500 us at 0 rad: centred 10 us lower, its
+    limits would need 490 us. Refused at that joint (minor never jogged), nothing written. And
+    sg5ut's shoulder pair, jogged together then trimmed one by one, cannot be offset at all."""
+    for arm, script, servo in [
+        ("desk4", {"major": ["-", "", "y"]}, "major"),
+        ("sg5ut", {"shoulder": ["+", ""], "shoulder_b": ["+", ""]}, "shoulder_a"),
+    ]:
+        out = tmp_path / f"{arm}.toml"
+        seen: list[str] = []
+        with SSC32Emulator() as emu:
+            code, said, err = converse(
+                ["calibrate", arm, "--adapter", "ssc32", "--port", emu.port, "--output", str(out)],
+                jog_script(script, seen),
+            )
+        assert code == 1 and f"{servo}: contradicts the joint limits" in err, (arm, said, err)
+        assert not out.exists()
+        if arm == "desk4":
+            assert not any("minor" in p for p in seen)
+        else:
+            assert [p.split()[1] for p in seen if p.startswith("Trim")] == ["shoulder_a", "shoulder_b", "shoulder_b"]
