@@ -151,6 +151,11 @@ class SdkBus(Bus):
             raise ControllerFault(f"cannot open {port}: {e}") from None
         if not opened:
             raise ControllerFault(f"cannot open {port} at {baud} baud")
+        try:  # one program on a bus at a time (an adapter, armd calibrate, armd record): pyserial's lock
+            self.handler.ser.exclusive = True
+        except Exception as e:  # (pyserial's SerialException: another program holds the lock)
+            self.handler.closePort()
+            raise ControllerFault(f"{port} is busy (another program has it open: an adapter?): {e}") from None
         # the SDK opens the port non-blocking and spins reading until a reply comes: a read that
         # waits (up to READ_WAIT for the bytes it asks for) leaves the CPU to others meanwhile (the
         # control loop runs at real-time priority: a spinning one starves everything else on its core)

@@ -44,20 +44,23 @@ from .trajectory_message import FloatArray
 log = logging.getLogger(__name__)
 
 NUDGE = 0.05  # [rad] the least a nudged joint must turn to show its direction
+LIMP = "Hold the arm: its servos are about to let go (torque off). Then press Enter"
 STILL_READS = 5  # readings whose median is a pose held still
 NUDGE_TRIES = 3  # prompts for a joint that did not move before it is refused
 
 
 class HandGuided:
-    """``robot``'s servos on ``bus``, every one answering and its torque off."""
+    """``robot``'s servos on ``bus``, every one answering, then (once ``ready()`` returns: the
+    operator holds the arm) its torque off."""
 
-    def __init__(self, robot: Robot, bus: Bus) -> None:
+    def __init__(self, robot: Robot, bus: Bus, ready: Callable[[], None]) -> None:
         self.robot = robot
         self.bus = bus
         self.servos = actuators_of(robot, BusServo, bus.name)
         self.gripper_id = robot.gripper.channel if robot.gripper is not None else None
         self.ids = [s.id for s in self.servos] + ([self.gripper_id] if self.gripper_id is not None else [])
         ping_all(bus, robot, self.servos)
+        ready()
         for i in self.ids:
             bus.set_torque(i, False)
         self._lost = 0
@@ -98,9 +101,6 @@ class HandGuided:
             return None
         return float(np.clip((got[self.gripper_id].position - g.closed) / (g.open - g.closed), 0.0, 1.0))
 
-    def close(self) -> None:
-        self.bus.close()
-
 
 def calibrate(
     robot: Robot, bus: Bus, ask: Callable[[str], None], say: Callable[[str], None]
@@ -108,12 +108,13 @@ def calibrate(
     """Measure ``robot``'s calibration on ``bus`` with the operator: ``ask(prompt)`` returns when
     they have done what it says (pressed Enter), ``say`` tells them the rest. Returns
     ``({actuator: (zero, direction, (low, high))}, gripper (closed, open) or None)``, checked
-    against the arm's limits (else :class:`RobotFileError` naming the servo)."""
-    arm = HandGuided(robot, bus)
+    against the arm's limits (else :class:`RobotFileError` naming the servo). ``bus`` is closed
+    at the end, whatever happens."""
     try:
+        arm = HandGuided(robot, bus, lambda: ask(LIMP))
         servos = arm.servos
         amap = robot.actuators
-        say(f"{robot.name}: {len(arm.ids)} servos answer on {bus.port}; their torque is off: support the arm")
+        say(f"{robot.name}: {len(arm.ids)} servos answer on {bus.port}; their torque is off")
         ask("Put the arm at its reference pose, every joint at 0 rad (the arm's README shows it), then press Enter")
         ref = arm.still()
         a_ref = amap.M @ np.zeros(robot.nq) + amap.b  # [rad] each actuator's angle at the reference pose
@@ -157,7 +158,7 @@ def calibrate(
         robots_calibration.apply_tables(robot, tables, "the measured calibration")
         return values, gripper
     finally:
-        arm.close()
+        bus.close()
 
 
 def _sweep(arm: HandGuided, ask: Callable[[str], None]) -> tuple[dict[int, float], dict[int, float]]:
@@ -201,12 +202,19 @@ def _sweep(arm: HandGuided, ask: Callable[[str], None]) -> tuple[dict[int, float
 
 
 def record(
-    robot: Robot, bus: Bus, stop: threading.Event, *, seconds: float | None = None, say: Callable[[str], None]
+    robot: Robot,
+    bus: Bus,
+    stop: threading.Event,
+    *,
+    seconds: float | None = None,
+    say: Callable[[str], None],
+    ready: Callable[[], None],
 ) -> Recording:
-    """The arm's motion by hand, every joint and the gripper read at the bus's rate, from now
-    until ``stop`` is set (or ``seconds`` have passed)."""
-    arm = HandGuided(robot, bus)
+    """The arm's motion by hand, every joint and the gripper read at the bus's rate, from when
+    ``ready()`` returns (the operator holds the arm; the torque then goes off) until ``stop`` is
+    set (or ``seconds`` have passed). ``bus`` is closed at the end, whatever happens."""
     try:
+        arm = HandGuided(robot, bus, ready)
         say(f"{robot.name}: recording; the servos' torque is off: move the arm by hand")
         t0 = time.monotonic()
         times: list[float] = []
@@ -232,4 +240,4 @@ def record(
             gripper=np.array(opening) if opening else None,
         )
     finally:
-        arm.close()
+        bus.close()

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -71,19 +72,37 @@ def apply_tables(robot: Robot, data: dict[str, Any], source: str) -> Robot:
     return out
 
 
+def _number(value: object, source: str, name: str, key: str) -> float:
+    """``value`` as a finite number, else :class:`RobotFileError` naming ``key`` (a bool is not one)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise RobotFileError(source, name, f"{key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _direction(value: object, source: str, name: str) -> int:
+    if isinstance(value, bool) or value not in (1, -1):
+        raise RobotFileError(source, name, f"direction must be 1 or -1, got {value!r}")
+    return int(value)
+
+
+def _keys(table: object, keys: set[str], source: str, name: str, what: str) -> dict[str, Any]:
+    if not isinstance(table, dict) or set(table) - keys:
+        raise RobotFileError(source, name, f"takes {what} only")
+    return table
+
+
 def _bus_servo(servo: BusServo, table: object, source: str) -> BusServo:
     """``servo`` with its measured zero, direction and range."""
     name = servo.name
-    if not isinstance(table, dict) or set(table) - {"zero", "direction", "range"}:
-        raise RobotFileError(source, name, "takes zero, direction and range only")
-    try:
-        zero = float(table.get("zero", servo.zero))
-        direction = int(table.get("direction", servo.direction))
-        lo, hi = (float(x) for x in table.get("range", servo.count_range))
-    except (TypeError, ValueError) as e:
-        raise RobotFileError(source, name, f"zero, direction and range must be numbers: {e}") from None
-    if direction not in (1, -1) or not lo < hi:
-        raise RobotFileError(source, name, "direction must be 1 or -1, and range [lower, upper] counts")
+    t = _keys(table, {"zero", "direction", "range"}, source, name, "zero, direction and range")
+    zero = _number(t.get("zero", servo.zero), source, name, "zero")
+    direction = _direction(t.get("direction", servo.direction), source, name)
+    rng = t.get("range", servo.count_range)
+    if not isinstance(rng, (list, tuple)) or len(rng) != 2:
+        raise RobotFileError(source, name, f"range must be [lower, upper] counts, got {rng!r}")
+    lo, hi = (_number(x, source, name, "range") for x in rng)
+    if not lo < hi:
+        raise RobotFileError(source, name, f"range must be [lower, upper] counts, lower first, got {rng!r}")
     new = dataclasses.replace(servo, zero=zero, direction=direction, count_range=(lo, hi))
     ends = sorted(float(new.to_command(np.array(x))) for x in servo.angle_range)
     if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
@@ -101,27 +120,29 @@ def _bus_servo(servo: BusServo, table: object, source: str) -> BusServo:
 def _servo(servo: Servo, table: object, source: str) -> Servo:
     """``servo`` (an SSC-32 channel) with its measured centre pulse and direction."""
     name = servo.name
-    if not isinstance(table, dict) or set(table) - {"centre_pulse", "direction"}:
-        raise RobotFileError(source, name, "takes centre_pulse and direction only")
-    try:
-        centre = float(table.get("centre_pulse", servo.centre_pulse))
-        direction = int(table.get("direction", servo.direction))
-    except (TypeError, ValueError) as e:
-        raise RobotFileError(source, name, f"centre_pulse and direction must be numbers: {e}") from None
-    if direction not in (1, -1) or not np.isfinite(centre):
-        raise RobotFileError(source, name, "direction must be 1 or -1, and centre_pulse a pulse [us]")
+    t = _keys(table, {"centre_pulse", "direction"}, source, name, "centre_pulse and direction")
+    centre = _number(t.get("centre_pulse", servo.centre_pulse), source, name, "centre_pulse")
+    direction = _direction(t.get("direction", servo.direction), source, name)
     new = dataclasses.replace(servo, centre_pulse=centre, direction=direction)
-    lo, hi = servo.pulse_range
-    ends = sorted(float(new.to_command(np.array(x))) for x in servo.angle_range)
-    if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
+    problem = servo_misfit(new)
+    if problem:
         raise RobotFileError(
-            source,
-            name,
-            f"contradicts the joint limits: centred at {centre:g} us, its limits [{servo.angle_range[0]:.4f}, "
-            f"{servo.angle_range[1]:.4f}] rad need pulses [{ends[0]:.0f}, {ends[1]:.0f}] us, beyond the servo's "
-            f"[{lo:g}, {hi:g}]: calibrate again, or narrow the limits",
+            source, name, f"contradicts the joint limits: {problem}: calibrate again, or narrow the limits"
         )
     return new
+
+
+def servo_misfit(servo: Servo) -> str | None:
+    """Why ``servo``'s joint limits need a pulse beyond its range, or None if they do not."""
+    lo, hi = servo.pulse_range
+    ends = sorted(float(servo.to_command(np.array(x))) for x in servo.angle_range)
+    if ends[0] < lo - 1e-6 or ends[1] > hi + 1e-6:
+        return (
+            f"centred at {servo.centre_pulse:g} us, its limits [{servo.angle_range[0]:.4f}, "
+            f"{servo.angle_range[1]:.4f}] rad need pulses [{ends[0]:.0f}, {ends[1]:.0f}] us, beyond the servo's "
+            f"[{lo:g}, {hi:g}]"
+        )
+    return None
 
 
 def _gripper(robot: Robot, table: object, source: str) -> Gripper:
@@ -130,14 +151,10 @@ def _gripper(robot: Robot, table: object, source: str) -> Gripper:
         raise RobotFileError(source, "gripper", f"{robot.name} has no gripper on a bus")
     if not isinstance(table, dict) or set(table) != {"closed", "open"}:
         raise RobotFileError(source, "gripper", "takes closed and open [counts], both")
-    try:
-        closed, opened = float(table["closed"]), float(table["open"])
-    except (TypeError, ValueError) as e:
-        raise RobotFileError(source, "gripper", f"closed and open must be numbers: {e}") from None
-    if not (np.isfinite(closed) and np.isfinite(opened)) or closed == opened:
-        raise RobotFileError(
-            source, "gripper", f"closed and open must be two different counts, got {closed:g}, {opened:g}"
-        )
+    closed = _number(table["closed"], source, "gripper", "closed")
+    opened = _number(table["open"], source, "gripper", "open")
+    if closed == opened:
+        raise RobotFileError(source, "gripper", f"closed and open must be two different counts, got {closed:g} twice")
     return dataclasses.replace(robot.gripper, closed=closed, open=opened)
 
 

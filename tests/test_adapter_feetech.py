@@ -93,6 +93,23 @@ def test_a_servo_that_does_not_answer_at_start_is_named(adapter_session: zenoh.S
     assert "servo id 3 (elbow_flex)" in e.value.message
 
 
+def test_a_bus_another_program_has_open_is_refused_as_busy() -> None:
+    """An adapter, or armd calibrate or record, on a port another one drives: refused, not two
+    programs turning torques on and off under each other."""
+    from armd.adapters.feetech import FeetechBus
+
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu:
+        first = FeetechBus(emu.port, 1_000_000)
+        try:
+            with pytest.raises(ControllerFault) as e:
+                FeetechBus(emu.port, 1_000_000)
+            assert "busy" in e.value.message and emu.port in e.value.message
+            assert first.ping(1) is not None  # (the first still has it)
+        finally:
+            first.close()
+        FeetechBus(emu.port, 1_000_000).close()  # (free again)
+
+
 def test_an_arm_of_other_actuators_is_refused_before_the_port_is_opened(adapter_session: zenoh.Session) -> None:
     with pytest.raises(BadRequest) as e:
         FeetechAdapter(adapter_session, robots.load("insomniac"), "/dev/nonexistent-feetech")
