@@ -6,14 +6,18 @@ the service)."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
-from armd.errors import ArmdError, BadRequest
+from armd.errors import ArmdError, BadRequest, NoAdapter
 
 from .common import BUS_SERVOS, open_bus, robot_named, signals
+
+GRIPPER_CONFIRM = 2.0  # [s] how long an adapter may take to say it commanded the gripper
 
 
 def say(line: str) -> None:
@@ -56,7 +60,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     arm, bus = _bus_arm(args, None)
     values, gripper = calibrate(arm, bus, ask, say)
-    path = Path(args.output) if args.output else calibration_file(arm)
+    path = Path(args.output) if args.output else calibration_file(arm, args.state_dir)
     robots_calibration.write(path, values, gripper)
     for name, (zero, direction, (lo, hi)) in values.items():
         say(f"  {name}: zero {zero:g}, direction {direction:+d}, range [{lo:g}, {hi:g}] counts")
@@ -76,19 +80,22 @@ def ask_line(prompt: str) -> str:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from armd.adapters.by_hand import record
+    from armd.adapters.by_hand import LIMP, record
 
     arm, bus = _bus_arm(args, args.calibration or "")
     stop = signals()
-    if args.seconds is None:  # (else it ends by itself; Ctrl-C ends either)
-        say("press Enter to end the recording")
 
-        def on_enter() -> None:
-            sys.stdin.readline()
+    def on_enter() -> None:
+        if sys.stdin.readline():  # (a closed input ends nothing: --seconds or Ctrl-C does)
             stop.set()
 
+    def ready() -> None:
+        ask(LIMP)
+        if args.seconds is None:
+            say("recording: press Enter to end it")
         threading.Thread(target=on_enter, name="armd-record-enter", daemon=True).start()
-    rec = record(arm, bus, stop, seconds=args.seconds, say=say)
+
+    rec = record(arm, bus, stop, seconds=args.seconds, say=say, ready=ready)
     out = Path(args.output)
     rec.save(out)
     span = float(rec.times[-1] - rec.times[0])
@@ -101,6 +108,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     from armd.planning.recording import Recording, parts
 
     arm = robot_named(args.robot, args.robots_dir)
+    if not 0.0 <= args.gripper_wait <= 60.0:  # (NaN fails too)
+        raise BadRequest(f"--gripper-wait must be in [0, 60] s, got {args.gripper_wait}", field="gripper_wait")
     rec = Recording.load(Path(args.file))
     todo = parts(rec, arm, tolerance=args.tolerance, max_via=args.max_via)
     vias = sum(len(p.via) for p in todo)
@@ -121,11 +130,43 @@ def cmd_replay(args: argparse.Namespace) -> int:
             total += r.duration
             grip = ""
             if p.gripper is not None and arm.gripper is not None:
-                c.gripper(args.robot, p.gripper)
+                _grip(c, args, p.gripper)
                 grip = f", gripper {p.gripper:.2f}"
             say(f"  move {k + 1}/{len(todo)}: {what}, {len(p.via)} via, {r.duration:.2f} s{grip}")
     say(f"replayed {args.file} on {args.robot}: {total:.1f} s of motion")
     return 0
+
+
+def _grip(c: Any, args: argparse.Namespace, opening: float) -> None:
+    """The gripper to ``opening``, once an adapter says it commanded it (its event ``gripper``),
+    and ``--gripper-wait`` more for it to get there: the next move does not start with the
+    gripper on its way."""
+    done = threading.Event()
+    asked: list[str] = []
+    seen: list[str] = []
+
+    def on_event(sample: Any) -> None:
+        try:
+            e = json.loads(sample.payload.to_bytes())
+        except ValueError:
+            return
+        if isinstance(e, dict) and e.get("event") == "gripper":
+            seen.append(str(e.get("id")))
+            if asked and asked[0] in seen:
+                done.set()
+
+    sub = c.session.declare_subscriber(f"{args.prefix}/{args.robot}/events", on_event)
+    try:
+        asked.append(str(c.gripper(args.robot, opening)["id"]))
+        if asked[0] in seen:
+            done.set()
+        if not done.wait(GRIPPER_CONFIRM):
+            raise NoAdapter(
+                f"no adapter of {args.robot} said it moved the gripper within {GRIPPER_CONFIRM:g} s", robot=args.robot
+            )
+    finally:
+        sub.undeclare()
+    time.sleep(args.gripper_wait)
 
 
 def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
@@ -147,7 +188,7 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
         help="where to write it (default: the adapters' state dir, $ARMD_STATE_DIR or ~/.local/state/armd, "
         "<robot>.calibration.toml: read by the adapter at start)",
     )
-    p.add_argument("--state-dir", help="ssc32: the adapters' state dir (default $ARMD_STATE_DIR, ...)")
+    p.add_argument("--state-dir", help="the adapters' state dir, where it is written (default $ARMD_STATE_DIR, ...)")
     p.set_defaults(func=cmd_calibrate, log_default="warning")
 
     p = sub.add_parser(
@@ -173,7 +214,13 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
         "--tolerance", type=float, default=0.01, help="how far [rad] the replay's path may leave the recording's"
     )
     p.add_argument("--speed", type=float, default=1.0, help="fraction of the velocity limits (default 1)")
-    p.add_argument("--max-via", type=int, default=50, help="most via points in one move (default 50)")
+    p.add_argument("--max-via", type=int, default=50, help="most via points in one move (default 50, at most 100)")
+    p.add_argument(
+        "--gripper-wait",
+        type=float,
+        default=0.5,
+        help="seconds the gripper is given to get where it is sent before the arm moves on (default 0.5)",
+    )
     p.add_argument(
         "--arrival", type=float, default=0.02, help="how near [rad] each move's end counts as arrived (default 0.02)"
     )

@@ -36,7 +36,11 @@ JUMP_STEP = 0.05  # [rad] a change between two readings this large ...
 JUMP_SPEED = 15.0  # [rad/s] ... and this fast is a jump (no hand turns a joint so): a glitch, a lost calibration
 SMOOTH = 0.05  # [s] the moving average's window (a count's noise smoothed out)
 TOLERANCE = 0.01  # [rad] how far the via points' path may leave the smoothed recording, per joint
-GRIPPER_STEP = 0.1  # a change of the gripper's opening this large is a gripper action
+GRIPPER_STEP = 0.1  # a change of the gripper's opening this large is a gripper action ...
+GRIPPER_SETTLE = 0.2  # [s] ... which ends when the opening stays within a fifth of that this long
+MAX_VIA = 100  # via points of one move: the service's own limit (max_waypoints)
+MAX_READINGS = 2_000_000  # readings of one recording (about 2 hours at 300 a second) ...
+MAX_FILE_BYTES = 400_000_000  # ... and its file's size
 
 
 @dataclass(frozen=True)
@@ -70,7 +74,7 @@ class Recording:
         """A recording from its JSON form, its shape checked (else :class:`BadRequest` naming the field)."""
         if not isinstance(data, dict):
             raise BadRequest("a recording is a JSON object", field="recording")
-        if data.get("format") != FORMAT or data.get("version") != VERSION:
+        if data.get("format") != FORMAT or type(data.get("version")) is not int or data["version"] != VERSION:
             raise BadRequest(
                 f"not an armd recording: format {data.get('format')!r} version {data.get('version')!r} "
                 f"(expected {FORMAT!r} version {VERSION})",
@@ -81,17 +85,15 @@ class Recording:
         robot, joints = data.get("robot"), data.get("joints")
         if not isinstance(robot, str) or not isinstance(joints, list) or not all(isinstance(j, str) for j in joints):
             raise BadRequest("robot must be a name and joints a list of names", field="robot")
-        try:
-            t = np.asarray(data.get("t"), dtype=float)
-            q = np.asarray(data.get("q"), dtype=float)
-            g = None if data.get("gripper") is None else np.asarray(data["gripper"], dtype=float)
-        except (TypeError, ValueError) as e:
-            raise BadRequest(f"t, q and gripper must be numbers: {e}", field="q") from None
-        n = len(t) if t.ndim == 1 else -1
-        if n < 2 or q.shape != (n, len(joints)) or (g is not None and g.shape != (n,)):
+        t = _numbers(data.get("t"), "t", 1)
+        q = _numbers(data.get("q"), "q", 2)
+        g = None if data.get("gripper") is None else _numbers(data["gripper"], "gripper", 1)
+        n = len(t)
+        if not 2 <= n <= MAX_READINGS or q.shape != (n, len(joints)) or (g is not None and g.shape != (n,)):
             raise BadRequest(
-                f"t must list two readings or more, q one vector of {len(joints)} joints a reading and gripper "
-                f"one number a reading: t {t.shape}, q {q.shape}" + ("" if g is None else f", gripper {g.shape}"),
+                f"t must list 2 to {MAX_READINGS} readings, q one vector of {len(joints)} joints a reading and "
+                f"gripper one number a reading: t {t.shape}, q {q.shape}"
+                + ("" if g is None else f", gripper {g.shape}"),
                 field="q",
             )
         if not (np.all(np.isfinite(t)) and np.all(np.isfinite(q)) and (g is None or np.all(np.isfinite(g)))):
@@ -106,10 +108,28 @@ class Recording:
     @classmethod
     def load(cls, path: Path) -> Recording:
         try:
+            if path.stat().st_size > MAX_FILE_BYTES:
+                raise BadRequest(
+                    f"the recording {path} is larger than {MAX_FILE_BYTES // 1_000_000} MB", field="recording"
+                )
             data = json.loads(path.read_text())
         except (OSError, ValueError) as e:
             raise BadRequest(f"cannot read the recording {path}: {e}", field="recording") from None
         return cls.from_json(data)
+
+
+def _numbers(value: object, field: str, depth: int) -> FloatArray:
+    """``value`` as an array of ``depth`` nested lists of numbers (not strings, not booleans),
+    else :class:`BadRequest` naming ``field``."""
+    rows = value if depth == 2 else [value]
+    if not isinstance(rows, list) or not all(isinstance(r, list) for r in rows):
+        raise BadRequest(f"{field} must be a list{' of lists' if depth == 2 else ''} of numbers", field=field)
+    if not all(type(x) in (int, float) for r in rows for x in r):  # (type: a bool is an int to isinstance)
+        raise BadRequest(f"{field} must hold numbers only", field=field)
+    if depth == 2 and len({len(r) for r in rows}) > 1:
+        raise BadRequest(f"{field}'s readings must all have one length", field=field)
+    out = np.array(rows, dtype=float)
+    return out if depth == 2 else out.reshape(-1)
 
 
 @dataclass(frozen=True)
@@ -173,18 +193,21 @@ def smooth(times: FloatArray, q: FloatArray, window: float = SMOOTH) -> FloatArr
 
 def simplify(q: FloatArray, tolerance: float = TOLERANCE) -> list[int]:
     """The indices of the fewest readings (the first and last among them) whose straight joint
-    segments stay within ``tolerance`` [rad], per joint, of every reading (Douglas-Peucker)."""
+    segments stay within ``tolerance`` [rad], per joint, of every reading: Douglas-Peucker, each
+    reading measured against the point as far along its segment as the reading is along the
+    recording's path between the segment's ends (so a motion that goes back over its own way,
+    0 -> 1 -> 0 -> 1, keeps its turns: measured against the nearest point of the segment, it
+    would be lost)."""
+    along = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))])  # [rad] path length
     keep = {0, len(q) - 1}
     stack = [(0, len(q) - 1)]
     while stack:
         a, b = stack.pop()
         if b - a < 2:
             continue
-        d = q[b] - q[a]
-        seg = q[a + 1 : b] - q[a]
-        dd = float(d @ d)
-        s = np.clip(seg @ d / dd, 0.0, 1.0) if dd > 0.0 else np.zeros(len(seg))
-        err = np.max(np.abs(seg - s[:, None] * d), axis=1)
+        span = along[b] - along[a]
+        s = (along[a + 1 : b] - along[a]) / span if span > 0.0 else np.zeros(b - a - 1)
+        err = np.max(np.abs(q[a + 1 : b] - (q[a] + s[:, None] * (q[b] - q[a]))), axis=1)
         k = int(np.argmax(err))
         if err[k] > tolerance:
             m = a + 1 + k
@@ -193,27 +216,52 @@ def simplify(q: FloatArray, tolerance: float = TOLERANCE) -> list[int]:
     return sorted(keep)
 
 
+def gripper_actions(times: FloatArray, g: FloatArray) -> list[tuple[int, float]]:
+    """Where the gripper opens or closes: ``(k, opening)``, the reading ``k`` where it starts to
+    move (by ``GRIPPER_STEP`` from where it was held) and the opening it settles at (within
+    ``GRIPPER_STEP / 5`` for ``GRIPPER_SETTLE``, or at the recording's end): a slow close by
+    hand is one action, not one for every step."""
+    out: list[tuple[int, float]] = []
+    held = g[0]
+    k = 1
+    while k < len(g):
+        if abs(g[k] - held) < GRIPPER_STEP:
+            k += 1
+            continue
+        e = k
+        while e < len(g) - 1:
+            calm = np.flatnonzero((times >= times[e]) & (times <= times[e] + GRIPPER_SETTLE))
+            if np.all(np.abs(g[calm] - g[e]) <= GRIPPER_STEP / 5) and times[-1] >= times[e] + GRIPPER_SETTLE:
+                e = int(calm[-1])  # (where it came to rest)
+                break
+            e += 1
+        out.append((k, float(g[e])))
+        held = g[e]
+        k = e + 1
+    return out
+
+
 def parts(rec: Recording, robot: Robot, *, tolerance: float = TOLERANCE, max_via: int = 50) -> list[Part]:
     """The replay of ``rec`` on ``robot``: checked (:func:`check`), smoothed, reduced to via points
-    within ``tolerance`` [rad] of it, split where the gripper opens or closes (by ``GRIPPER_STEP``)
+    within ``tolerance`` [rad] of it (:func:`simplify`), split where the gripper opens or closes
+    (:func:`gripper_actions`: the arm stops at its pose of that moment, then the gripper moves)
     and into moves of at most ``max_via`` via points."""
     if not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
         raise BadRequest(f"tolerance must be a positive number of radians, got {tolerance!r}", field="tolerance")
+    if isinstance(max_via, bool) or not isinstance(max_via, int) or not 0 <= max_via <= MAX_VIA:
+        raise BadRequest(f"max_via must be a whole number in [0, {MAX_VIA}], got {max_via!r}", field="max_via")
     q = check(rec, robot)
     q = np.clip(smooth(rec.times, q), robot.limits.lower, robot.limits.upper)
     g = rec.gripper
-    cuts = [0]  # reading indices where a part ends: where the gripper opens or closes, and the last
-    if g is not None:
-        held = g[0]
-        for k in range(1, len(g)):
-            if abs(g[k] - held) >= GRIPPER_STEP:  # the arm stops at its pose of that moment, then the gripper moves
-                cuts.append(k)
-                held = g[k]
+    actions = gripper_actions(rec.times, g) if g is not None else []
+    cuts = [0, *(k for k, _ in actions)]  # reading indices where a part ends: each gripper action, and the last
+    grips = [*(o for _, o in actions)]
     if cuts[-1] != len(q) - 1:
         cuts.append(len(q) - 1)
+        grips.append(float(g[-1]) if g is not None else math.nan)
     # first, to where the recording starts (the arm may be anywhere), the gripper as it was
     out = [Part([], q[0], None if g is None else float(g[0]), float(rec.times[0]), float(rec.times[0]))]
-    for a, b in itertools.pairwise(cuts):
+    for (a, b), grip in zip(itertools.pairwise(cuts), grips, strict=True):
         idx = [a + i for i in simplify(q[a : b + 1], tolerance)]
         for s in range(0, len(idx) - 1, max_via + 1):
             chunk = idx[s : s + max_via + 2]
@@ -222,7 +270,7 @@ def parts(rec: Recording, robot: Robot, *, tolerance: float = TOLERANCE, max_via
                 Part(
                     [q[i] for i in chunk[1:-1]],
                     q[chunk[-1]],
-                    float(g[b]) if g is not None and last else None,
+                    grip if g is not None and last else None,
                     float(rec.times[chunk[0]]),
                     float(rec.times[chunk[-1]]),
                 )

@@ -212,8 +212,9 @@ class Handlers:
         if self.adapters(arm) == 0:
             raise NoAdapter(f"no adapter drives {arm.name}: nothing would move the gripper", robot=arm.name)
         deadline.check()
-        self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": uuid.uuid4().hex})
-        return {"opening": opening, "pulse": pulse}
+        ident = uuid.uuid4().hex
+        self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": ident})
+        return {"opening": opening, "pulse": pulse, "id": ident}
 
     # -- the arm's world ---------------------------------------------------------------------
 

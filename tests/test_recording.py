@@ -5,6 +5,7 @@ torque off), the recording's checks, smoothing and via points (planning/recordin
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import subprocess
 import sys
@@ -68,6 +69,11 @@ def test_the_file_format_round_trips_and_malformed_files_are_refused_by_name(tmp
         ({"gripper": [2.0] * len(good["t"])}, "gripper"),
         ({"q": [[math.nan] * 5, *good["q"][1:]]}, "q"),
         ({"t": [0.0]}, "q"),
+        ({"version": True}, "format"),
+        ({"t": ["0.1", *good["t"][1:]]}, "t"),
+        ({"q": [[True, 0.0, 0.0, 0.0, 0.0], *good["q"][1:]]}, "q"),
+        ({"q": [good["q"][0][:4], *good["q"][1:]]}, "q"),
+        ({"gripper": "open"}, "gripper"),
     ]:
         with pytest.raises(BadRequest) as e:
             Recording.from_json({**good, **change})
@@ -121,8 +127,30 @@ def test_a_replay_is_split_where_the_gripper_moves_and_into_moves_of_few_via_poi
     assert abs(grips[1][0] - 1.5) < 0.01 and abs(grips[2][0] - 3.0) < 0.01
     for p, n in itertools.pairwise(todo[1:]):
         assert p.end_time == n.start_time  # (each move goes on from where the last ended)
-    with pytest.raises(BadRequest):
-        parts(rec, arm, tolerance=-1.0)
+    for bad in ({"tolerance": -1.0}, {"max_via": -1}, {"max_via": 101}, {"max_via": True}):
+        with pytest.raises(BadRequest):
+            parts(rec, arm, **bad)  # type: ignore[arg-type]
+
+
+def test_a_motion_back_over_its_own_way_keeps_its_turns() -> None:
+    """base 0 -> 1 -> 0 -> 1 rad: every turn a via point (the nearest point of a segment would
+    lose them: the readings all lie on the first segment)."""
+    t = np.linspace(0.0, 3.0, 901)
+    q = np.zeros((901, 5))
+    q[:, 0] = np.interp(t, [0, 1, 2, 3], [0.0, 1.0, 0.0, 1.0])
+    assert simplify(q, 0.01) == [0, 300, 600, 900]
+    todo = parts(Recording(ARM, tuple(robots.load(ARM).joint_names), t, q), robots.load(ARM))
+    turns = [float(v[0]) for p in todo[1:] for v in [*p.via, p.goal]]
+    assert np.allclose(turns, [1.0, 0.0, 1.0], atol=0.02), turns  # (smoothed over 50 ms at the turns)
+
+
+def test_a_slow_close_by_hand_is_one_gripper_action() -> None:
+    rec = recording(gripper=False)
+    g = np.interp(rec.times, [0.0, 1.0, 1.6, 4.0], [1.0, 1.0, 0.0, 0.0])  # closed over 0.6 s
+    todo = parts(Recording(ARM, rec.joints, rec.times, rec.position, g), robots.load(ARM))
+    grips = [(p.end_time, p.gripper) for p in todo if p.gripper is not None]
+    assert [x for _, x in grips] == [1.0, 0.0, 0.0], grips  # the start, the close, the end
+    assert abs(grips[1][0] - 1.06) < 0.005  # (the arm stops where the gripper had moved by 0.1: at 1.06 s)
 
 
 # -- replay, through the service ------------------------------------------------------------------
@@ -149,10 +177,22 @@ def test_a_replay_follows_the_recordings_path_within_the_limits(
     try:
         wait_for(lambda: service._adapter_count(arm) == 1, what="the sim's token")
         trajectories, sub = collect(client, f"armd/{ARM}/trajectory")
+        events: list[tuple[float, dict[str, Any]]] = []
+        timed = client.session.declare_subscriber(
+            f"armd/{ARM}/events", lambda s: events.append((time.monotonic(), json.loads(s.payload.to_bytes())))
+        )
         done = replay(router, file)
         sub.undeclare()  # type: ignore[attr-defined]
+        timed.undeclare()
         assert done.returncode == 0, done.stderr
         assert "replayed" in done.stdout.splitlines()[-1], done.stdout
+        # each gripper action, its adapter's word, then half a second before the arm goes on
+        kinds = [e["event"] for _, e in events]
+        assert kinds.count("gripper") == 4 and kinds.count("accepted") == 4, kinds  # (start, close, open, end)
+        for k, (t, e) in enumerate(events):
+            later = [u for u, f in events[k + 1 :] if f["event"] == "accepted"]
+            if e["event"] == "gripper" and later:
+                assert later[0] - t >= 0.5, (later[0] - t, kinds)
         assert np.allclose(sim.measure().position, rec.position[-1], atol=0.005)
         assert sim.gripper_opening == 1.0
         # the path executed: every sample within the limits, every reading of the recording near it
@@ -165,7 +205,7 @@ def test_a_replay_follows_the_recordings_path_within_the_limits(
         dense = (samples[:-1, None, :] + s * np.diff(samples, axis=0)[:, None, :]).reshape(-1, arm.nq)
         dist = np.array([np.min(np.max(np.abs(dense - q), axis=1)) for q in rec.position[::10]])
         assert np.max(dist) <= TOLERANCE + 0.008, np.max(dist)  # (measured: 0.013; the smoothing's share too)
-        # at the hand's pace: the replay of the 3.5 s (after the move to its start) took 3.9 s (4.7 s for
+        # at the hand's pace: the replay of the 3.5 s (after the move to its start) took 4.1 s (4.7 s for
         # its first 1.5 s when waypoints were passed at each joint's own speed, not the path's tangent)
         replayed = sum(t["duration"] for t in trajectories[1:])
         assert replayed <= 1.25 * (rec.times[-1] - rec.times[0]), replayed
@@ -215,6 +255,12 @@ def test_record_on_the_bus_then_replay_on_the_same_arm(
         for k, x in enumerate(path_at(0.0)):  # (the hand holds the arm at the path's start, the gripper open)
             emu.move_by_hand(k + 1, 2048 + x * per_rad)
         emu.move_by_hand(6, 3186)
+        from armd.adapters.feetech import FeetechBus
+
+        bus = FeetechBus(emu.port, 1_000_000)  # (servo 2 holding, as an adapter left it)
+        bus.write_goals({2: round(emu.position(2))}, {2: 1000})
+        bus.set_torque(2, True)
+        bus.close()
         proc = subprocess.Popen(
             [
                 sys.executable,
@@ -232,11 +278,16 @@ def test_record_on_the_bus_then_replay_on_the_same_arm(
                 "3",
             ],
             cwd=ROOT,
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
         )
-        assert proc.stdout is not None
+        assert proc.stdout is not None and proc.stdin is not None
+        assert proc.stdout.readline().startswith("> Hold the arm")
+        assert emu.register(2, 40) == 1  # (the adapter's torque: still on until the operator holds the arm)
+        proc.stdin.write("\n")
+        proc.stdin.flush()
         assert "recording" in proc.stdout.readline()
         moved: list[np.ndarray] = []
         t0 = time.monotonic()
