@@ -285,7 +285,9 @@ class Robot:
             return s.scanner_point(distance, bearing)
         if q is None:
             raise BadRequest(
-                f"sensor {sensor!r} is on frame {s.frame!r}: its reading needs the joint vector q", field="q"
+                f"sensor {sensor!r} is on frame {s.frame!r}: its reading is converted at the arm's pose when it "
+                "was taken; give that joint vector (seed)",
+                field="seed",
             )
         d = s.check_range(distance)
         qa = self.joint_vector(q)

@@ -121,11 +121,14 @@ class Handlers:
                 check=deadline.check,
             ).to_dict()
         req = check(IK_ONE, req, arm.joint_names)
+        seed = req.get("seed")
+        if seed is None and _reads_on_the_arm(arm, req):  # converted where the arm is, never at neutral
+            seed = self._present(arm, req).state.position
         return solvers.solve_ik(
             arm,
             req["target"],
             approach=req.get("approach"),
-            seed=req.get("seed"),
+            seed=seed,
             tolerance=req.get("tolerance", solvers.DEFAULT_TOLERANCE),
             quantise=req.get("quantise", False),
             roll=req.get("roll"),
@@ -133,14 +136,17 @@ class Handlers:
 
     def plan(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         req = check(PLAN, req, arm.joint_names)
-        traj = self._plan(arm, req, req.get("start"), deadline)
+        start = req.get("start")
+        if start is None and _reads_on_the_arm(arm, req):
+            start = _at_the_limits(arm, self._present(arm, req).state)
+        traj = self._plan(arm, req, start, deadline)
         return traj.to_dict()
 
     # -- verbs that move the arm --------------------------------------------------------------
 
     def move(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         req = check(MOVE, req, arm.joint_names)
-        known = self.book.current(arm)
+        known = self._present(arm, req) if _reads_on_the_arm(arm, req) else self.book.current(arm)
         traj = self._plan(
             arm, req, _at_the_limits(arm, known.state), deadline
         )  # (a bad request is told so, adapter or not)
@@ -266,6 +272,22 @@ class Handlers:
 
     # -- helpers ----------------------------------------------------------------------------
 
+    def _present(self, arm: Robot, req: Mapping[str, Any]) -> Any:
+        """Where ``arm`` is, as its adapter reports it, for a reading of a sensor on the arm (its
+        point depends on the pose it was taken at); :class:`PositionUnknown` if no adapter
+        reports one (the service's own guesses, neutral or the last trajectory, are not enough)."""
+        known = self.book.current(arm)
+        if known.source != "adapter":
+            name = _reads_on_the_arm(arm, req)
+            field = "seed" if "target" in req else "start"
+            raise PositionUnknown(
+                f"sensor {name!r} is on the arm: its reading is converted at the pose it was taken at, and no "
+                f"adapter of {arm.name} reports where the arm is; give that joint vector ({field})",
+                robot=arm.name,
+                field=field,
+            )
+        return known
+
     def _plan(self, arm: Robot, req: Mapping[str, Any], start: object, deadline: Deadline) -> planning.Trajectory:
         """``req``: checked against its verb's shape already."""
         via = req.get("via", [])
@@ -315,6 +337,18 @@ def _obstacle(spec: Mapping[str, Any], field: str, taken: set[str]) -> Obstacle:
         tuple(float(x) for x in spec["position"]),  # type: ignore[arg-type]
         tuple(float(x) for x in spec.get("rpy", (0.0, 0.0, 0.0))),  # type: ignore[arg-type]
     )
+
+
+def _reads_on_the_arm(arm: Robot, req: Mapping[str, Any]) -> str | None:
+    """The name of a sensor on the arm (``mount = "frame"``) whose reading ``req`` targets (its
+    ``target``, ``goal`` or a via point), or None."""
+    for g in [req.get("target"), req.get("goal"), *req.get("via", ())]:
+        t = g.get("target") if isinstance(g, Mapping) and isinstance(g.get("target"), Mapping) else g
+        if isinstance(t, Mapping) and "sensor" in t:
+            sensor = arm.sensors.get(str(t["sensor"]))
+            if sensor is not None and sensor.mount == "frame":
+                return sensor.name
+    return None
 
 
 def _at_the_limits(arm: Robot, state: JointState) -> JointState:

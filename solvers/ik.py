@@ -80,7 +80,9 @@ def solve_ik(
         target: [x, y, z] [m] in ``base``, or a :class:`~solvers.target.SensorReading`.
         approach: ``"parallel"``, ``"perpendicular"``, a pitch [rad] in [-pi, pi], or
             ``"free"``/None.
-        seed: the current joint vector [rad]; the answer is the valid branch nearest to it.
+        seed: the current joint vector [rad]; the answer is the valid branch nearest to it. A
+            reading of a sensor on the arm (``mount = "frame"``) is converted at it: without
+            a seed such a target is refused (the service gives the arm's present state).
         tolerance: position error [m] under which the answer is ``ok``.
         quantise: answer in whole actuator steps (stepper micro-steps), reporting the
             error quantisation leaves (status ``approximate`` when it exceeds ``tolerance``).
@@ -94,13 +96,16 @@ def solve_ik(
         BadRequest: malformed target, approach, seed, tolerance or roll (nothing is solved).
     """
     arm = arm_state(robot)
-    ref = robot.neutral if seed is None else robot.joint_vector(seed, "seed")
+    at = (
+        None if seed is None else robot.joint_vector(seed, "seed")
+    )  # where the arm is (a frame sensor's reading's pose)
+    ref = robot.neutral if at is None else at
     if roll is not None:
         angle = robot.roll_angle(roll, ref)  # (BadRequest on an arm without a wrist roll)
         assert robot.roll_joint is not None
         ref = ref.copy()
         ref[robot.roll_joint.index] = angle
-    point = target_point(robot, target, ref)
+    point = target_point(robot, target, at)  # (a sensor on the arm, with no seed: refused, never the neutral pose)
     pitch = approach_pitch(robot, approach)
     if type(tolerance) is float and 0.0 < tolerance <= MAX_TOLERANCE:
         pass  # the common case (NaN fails the comparison and takes the full check)

@@ -237,6 +237,19 @@ def test_sensor_reading_target_matches_seed_000() -> None:
     assert np.allclose(r2.target, [0.12 + 0.3 * math.cos(0.2), -0.10 + 0.3 * math.sin(0.2), 0.10])
 
 
+def test_a_reading_of_a_sensor_on_the_arm_is_converted_at_the_seed_and_refused_without_one() -> None:
+    """Issue 19's bug: the gripper's GP2D120 looks along the tool; its reading was converted at
+    the neutral pose when no seed was given (0.52 m off, and ``ok``)."""
+    arm = plain("insomniac")
+    q = np.array([0.5, 1.4, -1.3, -0.4, 0.2])
+    r = solve_ik(arm, {"sensor": "gripper_et", "range": 0.08}, seed=q)
+    assert np.allclose(r.target, arm.sensor_point("gripper_et", 0.08, q=q), atol=1e-12)
+    assert np.linalg.norm(r.target - arm.sensor_point("gripper_et", 0.08, q=arm.neutral)) > 0.05
+    with pytest.raises(BadRequest) as e:
+        solve_ik(arm, {"sensor": "gripper_et", "range": 0.08})
+    assert e.value.field == "seed" and "gripper_et" in e.value.message
+
+
 BAD = [
     ("insomniac", {"target": [0.2, float("nan"), 0.1]}, "target"),
     ("insomniac", {"target": [0.2, 0.1]}, "target"),

@@ -15,7 +15,7 @@ from armd import robots, solvers
 from armd.adapters.sim import SimAdapter
 from armd.clients import ArmClient
 from armd.errors import ArmdError, ServiceError
-from tests.conftest import clear_configs, collect
+from tests.conftest import clear_configs, collect, wait_for
 from tests.test_fk import random_in_limits
 
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -331,6 +331,43 @@ def test_stop_mid_move(client: ArmClient, sim: SimAdapter) -> None:
     assert not np.allclose(s["position"], [-0.8, 1.5, -0.6], atol=1e-3)  # halted short of the goal
     arm = robots.load("gupta3")
     assert arm.limits.contains(np.array(s["position"]), tol=1e-9)
+
+
+def test_a_gripper_sensor_reading_is_converted_where_the_adapter_says_the_arm_is(
+    client: ArmClient, router: str, service: object
+) -> None:
+    """No adapter: the reading of the GP2D120 on the gripper is refused (position_unknown), never
+    converted at the neutral pose. With the simulated arm at a pose: converted there (ik, plan
+    and move alike); a seed given: converted at the seed."""
+    from armd.service.zconfig import network_config
+
+    arm = robots.load("insomniac")
+    reading = {"sensor": "gripper_et", "range": 0.08}
+    for key, payload in [
+        ("insomniac/ik", {"target": reading}),
+        ("insomniac/plan", {"goal": {"target": reading}}),
+    ]:
+        with pytest.raises(ArmdError) as e:
+            client.call(key, payload)
+        assert e.value.code == "position_unknown" and "gripper_et" in e.value.message, e.value
+    session = zenoh.open(network_config(connect=[router]))
+    adapter = SimAdapter(session, arm, time_scale=5.0)
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the sim's token")  # type: ignore[attr-defined]
+        q = np.array([0.5, 1.4, -1.3, -0.4, 0.2])
+        client.move("insomniac", q.tolist(), wait=True, wait_timeout=20)
+        here = adapter.position.copy()
+        seen = arm.sensor_point("gripper_et", 0.08, q=here)
+        r = client.ik("insomniac", reading)
+        assert np.allclose(r.raw["target"], seen, atol=1e-9)
+        plan = client.plan("insomniac", {"target": reading})
+        assert np.linalg.norm(arm.fk(plan.position[-1]) - seen) < 1e-3
+        at = np.array(arm.neutral)
+        r = client.ik("insomniac", reading, seed=at.tolist())
+        assert np.allclose(r.raw["target"], arm.sensor_point("gripper_et", 0.08, q=at), atol=1e-9)
+    finally:
+        adapter.close()
+        session.close()
 
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "desk4"])
