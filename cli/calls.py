@@ -9,7 +9,10 @@ import json
 import sys
 from typing import Any
 
+import numpy as np
+
 from armd.clients import ArmClient
+from armd.errors import BadRequest
 
 from .common import approach, goal, motion_args, numbers
 
@@ -45,7 +48,7 @@ def cmd_robots(args: argparse.Namespace) -> int:
 
 
 def cmd_ik(args: argparse.Namespace) -> int:
-    target = numbers(args.xyz, "target")
+    target = _ik_target(args)
     seed = numbers(args.seed, "seed") if args.seed else None
     with _client(args) as c:
         r = c.ik(args.robot, target, approach=approach(args.approach), seed=seed, roll=args.roll)
@@ -54,6 +57,7 @@ def cmd_ik(args: argparse.Namespace) -> int:
         r.raw,
         [
             ("status", r.status),
+            ("target [m]", np.array(r.raw["target"])),
             ("q [rad]", r.q),
             ("position error [m]", r.position_error),
             ("reached [m]", r.reached),
@@ -66,6 +70,31 @@ def cmd_ik(args: argparse.Namespace) -> int:
         ],
     )
     return 0 if r.ok else 1
+
+
+def _ik_target(args: argparse.Namespace) -> object:
+    """``X Y Z`` [m], or ``--sensor NAME RANGE [BEARING]``: exactly one."""
+    if args.sensor is None:
+        if len(args.xyz) != 3:
+            raise BadRequest("ik needs a target: X Y Z [m], or --sensor NAME RANGE [BEARING]", field="target")
+        return numbers(args.xyz, "target")
+    if args.xyz:
+        raise BadRequest("a target X Y Z or --sensor, not both", field="target")
+    if not 2 <= len(args.sensor) <= 3:
+        raise BadRequest("--sensor takes NAME RANGE [BEARING] (range [m], bearing [rad])", field="sensor")
+    values = numbers(args.sensor[1:], "sensor")
+    return {"sensor": args.sensor[0], "range": values[0], "bearing": values[1] if len(values) > 1 else 0.0}
+
+
+def cmd_gripper(args: argparse.Namespace) -> int:
+    word = args.opening.lower()
+    opening = {"open": 1.0, "close": 0.0, "closed": 0.0}.get(word)
+    if opening is None:
+        opening = numbers([args.opening], "opening")[0]
+    with _client(args) as c:
+        r = c.gripper(args.robot, opening)
+    _show(args, r, [("opening", r["opening"]), ("command", r["pulse"]), ("id", r["id"])])
+    return 0
 
 
 def cmd_fk(args: argparse.Namespace) -> int:
@@ -213,7 +242,14 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("ik", parents=[log_args], help="inverse kinematics from the service: armd ik ROBOT X Y Z")
     p.add_argument("robot")
-    p.add_argument("xyz", nargs=3, metavar="X/Y/Z", help="target [m] in the arm's base frame")
+    p.add_argument("xyz", nargs="*", metavar="X/Y/Z", help="target [m] in the arm's base frame (or --sensor)")
+    p.add_argument(
+        "--sensor",
+        nargs="+",
+        metavar="NAME RANGE [BEARING]",
+        help="a range sensor's reading as the target: its name, range [m] and bearing [rad] (a sensor on the "
+        "arm is read where the arm is: --seed, else its adapter's state)",
+    )
     p.add_argument("--approach", help="parallel, perpendicular, free or a pitch [rad]")
     p.add_argument("--roll", type=float, help="the tool's roll about its axis [rad] (an arm with a wrist roll)")
     p.add_argument("--seed", nargs="+", metavar="Q", help="current joint vector [rad]")
@@ -238,6 +274,12 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
     _client_args(p)
     p.set_defaults(func=cmd_move)
+
+    p = sub.add_parser("gripper", parents=[log_args], help="open or close an arm's gripper: open, close or 0..1")
+    p.add_argument("robot")
+    p.add_argument("opening", help="open, close, or an opening from 0 (closed) to 1 (open)")
+    _client_args(p)
+    p.set_defaults(func=cmd_gripper)
 
     p = sub.add_parser("stop", parents=[log_args], help="stop an arm now")
     p.add_argument("robot")

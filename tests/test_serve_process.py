@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import signal
 import subprocess
 import sys
@@ -98,6 +100,29 @@ def test_cli_against_the_process(served: str) -> None:
     assert r.returncode == 1 and "armd: error:" in r.stderr and "Traceback" not in r.stderr
     r = cli(served, "ik", "gupta9", "0.2", "0.0", "0.1")
     assert r.returncode == 1 and "unknown robot" in r.stderr
+
+
+def test_cli_sensor_targets_and_the_gripper(served: str) -> None:
+    """``armd ik ROBOT --sensor NAME RANGE [BEARING]`` (seed 000's readings), the gripper's sensor
+    read where the simulated arm is, and ``armd gripper ROBOT open|close|0..1``."""
+    arm = robots.load("insomniac")
+    r = cli(served, "ik", "insomniac", "--sensor", "et_left", "0.25", "-0.3", "--approach", "parallel", "--json")
+    assert r.returncode == 0, r.stderr
+    expected = [0.12 + 0.25 * math.cos(-0.3), 0.10 + 0.25 * math.sin(-0.3), 0.10]
+    assert np.allclose(json.loads(r.stdout)["target"], expected, atol=1e-12)
+    with ArmClient(served) as c:
+        here = np.array(c.state("insomniac")["position"])
+    r = cli(served, "ik", "insomniac", "--sensor", "gripper_et", "0.08", "--json")
+    assert np.allclose(json.loads(r.stdout)["target"], arm.sensor_point("gripper_et", 0.08, q=here), atol=1e-9)
+    for bad in (["0.2", "0.0", "0.1", "--sensor", "et_left", "0.2"], [], ["--sensor", "et_left"]):
+        r = cli(served, "ik", "insomniac", *bad)
+        assert r.returncode == 1 and r.stderr.startswith("armd: error:"), (bad, r.stderr)
+    r = cli(served, "gripper", "insomniac", "close")
+    assert r.returncode == 0 and "opening" in r.stdout, r.stderr
+    r = cli(served, "gripper", "insomniac", "0.5", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["opening"] == 0.5
+    r = cli(served, "gripper", "insomniac", "1.5")
+    assert r.returncode == 1 and "opening" in r.stderr
 
 
 def test_cli_without_a_service() -> None:
