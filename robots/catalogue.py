@@ -727,7 +727,19 @@ class _Builder:
             mount = t.string("mount")
             if mount == "scanner":
                 x, y, z = t.vector("position", 3)
-                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]), position=(x, y, z))
+                sweep = t.vector("sweep", 2, [-1.0, 1.0], angle=True)  # [rad] its scanning servo's bearings
+                if not -math.pi <= sweep[0] < sweep[1] <= math.pi:
+                    raise t.error("sweep", f"must be [first, last] in [-pi, pi] rad, first < last, got {sweep}")
+                step = t.number("sweep_step", 0.035, positive=True, angle=True)
+                out[name] = RangeSensor(
+                    name,
+                    model_name,
+                    mount,
+                    (rng[0], rng[1]),
+                    position=(x, y, z),
+                    sweep=(sweep[0], sweep[1]),
+                    sweep_step=step,
+                )
             elif mount == "frame":
                 frame = t.string("frame")
                 if frame not in frames:

@@ -439,10 +439,18 @@ def check(shape: Obj, req: Mapping[str, Any], joints: Joints = ()) -> dict[str, 
 POINT = Vec(3, "m", MAX_METRES)
 JOINTS = Vec(None, "rad", MAX_RADIANS)
 PITCH = Num("rad", -math.pi, math.pi)
+MAX_VOLTS = 100.0  # [V] a sensor's output: beyond any range sensor's
 SENSOR_READING = Obj(
-    {"sensor": Word(), "range": Num("m", -MAX_METRES, MAX_METRES), "bearing": Num("rad", -MAX_RADIANS, MAX_RADIANS)},
-    required=(("sensor", "the sensor's name"), ("range", "the reading [m]")),
-    what='a sensor reading {"sensor", "range", "bearing"}',
+    {
+        "sensor": Word(),
+        "range": Num("m", -MAX_METRES, MAX_METRES),
+        "volts": Num("V", -MAX_VOLTS, MAX_VOLTS),
+        "bearing": Num("rad", -MAX_RADIANS, MAX_RADIANS),
+    },
+    required=(("sensor", "the sensor's name"),),
+    exclusive=(("range", "volts", "a reading is a range [m] or the sensor's output [V]"),),
+    one_of=("range", "volts"),
+    what='a sensor reading {"sensor", "range" or "volts", "bearing"}',
 )
 TARGET = Either(
     {"list": POINT, "object": SENSOR_READING},

@@ -2,7 +2,8 @@
 
 ``target`` is a point [x, y, z] [m] in the arm's ``base`` frame, or a
 :class:`SensorReading` (sensor name, range [m], bearing [rad]) that the arm's sensor frame
-turns into a base-frame point first (seed 000 section 4).
+turns into a base-frame point first (seed 000 section 4); as a mapping, a reading may give the
+sensor's output ``volts`` [V] instead of its range (its model's curve converts it).
 
 ``approach`` says what the tool pitch must be: ``"parallel"`` (level, pitch 0),
 ``"perpendicular"`` (straight down, pitch -pi/2; seed 000 eq. 1), a pitch in radians in
@@ -54,11 +55,16 @@ def target_point(robot: Robot, target: object, q: FloatArray | None = None) -> F
     if isinstance(target, SensorReading):
         return robot.sensor_point(target.sensor, target.range, target.bearing, q)
     if isinstance(target, Mapping):
-        try:
-            reading = SensorReading(str(target["sensor"]), target["range"], target.get("bearing", 0.0))
-        except KeyError as e:
-            raise BadRequest(f"a sensor target needs 'sensor' and 'range' (missing {e})", field="target") from None
-        return robot.sensor_point(reading.sensor, reading.range, reading.bearing, q)
+        if "sensor" not in target or ("range" in target) == ("volts" in target):
+            raise BadRequest("a sensor target needs 'sensor' and one of 'range' [m] or 'volts' [V]", field="target")
+        name = str(target["sensor"])
+        if "volts" in target:  # the sensor's output: its model's curve says the range
+            if name not in robot.sensors:
+                robot.sensor_point(name, 0.0)  # (the unknown sensor, named)
+            distance = robot.sensors[name].range_of_volts(target["volts"])
+        else:
+            distance = target["range"]
+        return robot.sensor_point(name, distance, target.get("bearing", 0.0), q)
     if isinstance(target, (str, bytes)):
         raise BadRequest(f"target must be [x, y, z] in metres, got {target!r}", field="target")
     try:
