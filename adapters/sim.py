@@ -2,12 +2,19 @@
 (or ``time_scale`` times faster), with an optional first-order servo lag, so that the whole
 system runs with no hardware. ``armd adapter sim ROBOT``; ``armd serve --sim`` starts one
 per catalogue arm. Everything on the Zenoh side is :class:`clients.adapter.Adapter`'s.
+
+Its range sensors (those whose model has a curve: the Sharp GP2D12 and GP2D120) read a world
+of ``objects`` on the floor and publish on ``<prefix>/<robot>/sensors/<name>``
+(:mod:`.sim_sensors`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import threading
 import time
+from collections.abc import Sequence
 
 import numpy as np
 import zenoh
@@ -16,6 +23,7 @@ from armd.planning import JointState
 from armd.robots import Robot
 
 from .base import Adapter
+from .sim_sensors import FloorObject, SimulatedSensors
 from .trajectory_message import Command
 
 
@@ -32,6 +40,8 @@ class SimAdapter(Adapter):
         lag: float = 0.0,
         state_hz: float = 50.0,
         start: np.ndarray | None = None,
+        objects: Sequence[FloorObject] = (),
+        sensor_seed: int | None = None,
     ) -> None:
         if not (time_scale > 0 and math.isfinite(time_scale)):
             raise ValueError("time_scale must be a positive number")
@@ -42,7 +52,22 @@ class SimAdapter(Adapter):
         self.velocity = np.zeros(robot.nq)
         self.acceleration = np.zeros(robot.nq)
         self._last = time.monotonic()
+        base = f"{prefix}/{robot.name}/sensors"
+        self._sensor_pubs = {name: session.declare_publisher(f"{base}/{name}") for name in robot.sensors}
+        self.sensors = SimulatedSensors(
+            robot,
+            objects,
+            lambda name, payload: self._sensor_pubs[name].put(payload),
+            lambda: self.position.copy(),
+            adapter=self.id,
+            time_scale=time_scale,
+            seed=sensor_seed,
+        )
+        self._sensing = threading.Thread(
+            target=self.sensors.run, args=(self._stop,), name=f"sim-sensors-{robot.name}", daemon=True
+        )
         self.activate()
+        self._sensing.start()
 
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
         now = time.monotonic()
@@ -64,3 +89,10 @@ class SimAdapter(Adapter):
 
     def measure(self) -> JointState:
         return JointState(self.position.copy(), self.velocity.copy(), self.acceleration.copy())
+
+    def shutdown(self) -> None:
+        if self._sensing.is_alive():
+            self._sensing.join(timeout=2.0)
+        for pub in self._sensor_pubs.values():
+            with contextlib.suppress(zenoh.ZError):
+                pub.undeclare()

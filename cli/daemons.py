@@ -40,6 +40,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
     arms = all_robots(args.robots_dir)
+    world = _sim_objects(args.objects, arms)  # (checked before the network is joined)
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config)
     stop = signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
     session = open_session(conf)
@@ -52,7 +53,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.sim:
         from armd.adapters.sim import SimAdapter
 
-        sims = [SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale) for arm in arms.values()]
+        sims = [
+            SimAdapter(session, arm, prefix=args.prefix, time_scale=args.time_scale, objects=world.get(name, []))
+            for name, arm in arms.items()
+        ]
     extra = f", with simulated arms (x{args.time_scale:g} real time)" if args.sim else ""
     print(f"armd serving {', '.join(arms)} on {where(conf)} (prefix {args.prefix}){extra}; Ctrl-C to stop", flush=True)
     try:
@@ -114,6 +118,28 @@ def cmd_adapter(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sim_objects(path: str | None, arms: dict[str, Robot]) -> dict[str, Any]:
+    """``--objects FILE``: ``{"<robot>": [{"name", "shape", "size", "position", "yaw"}, ...]}``,
+    the objects on each simulated arm's floor (its sensors see them), checked."""
+    if not path:
+        return {}
+    import json
+    from pathlib import Path
+
+    from armd.adapters.sim_sensors import objects_of
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as e:
+        raise BadRequest(f"--objects {path}: cannot be read: {e}", field="objects") from None
+    if not isinstance(data, dict):
+        raise BadRequest(f"--objects {path}: must map each arm's name to a list of objects", field="objects")
+    unknown = sorted(set(data) - set(arms))
+    if unknown:
+        raise BadRequest(f"--objects {path}: no arm {', '.join(unknown)} here", field="objects")
+    return {name: objects_of(specs, f"objects.{name}") for name, specs in data.items()}
+
+
 def _join(args: argparse.Namespace, stop: threading.Event) -> Any:
     """A Zenoh session, retried every second until a router answers (said once); None if
     ``stop`` was set meanwhile. Once open, a router that goes away and comes back is rejoined
@@ -152,6 +178,7 @@ def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: obje
             prefix=args.prefix,
             time_scale=args.time_scale,
             lag=args.lag,
+            objects=_sim_objects(args.objects, {arm.name: arm}).get(arm.name, []),
         )
     if args.kind in BUS_SERVOS:
         from armd.adapters.dynamixel import DynamixelAdapter
@@ -284,6 +311,12 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
         help="log one line per request (--log-level debug)",
     )
     p.add_argument("--sim", action="store_true", help="also run a simulated arm (adapter) for every arm")
+    p.add_argument(
+        "--objects",
+        metavar="FILE",
+        help='with --sim: objects on the simulated arms\' floors, seen by their sensors: JSON {"<robot>": '
+        '[{"name", "shape": "cylinder"|"box"|"sphere", "size", "position": [x, y], "yaw"}]} (docs/sensors.md)',
+    )
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (with --sim)")
     _limit_args(p)
     p.set_defaults(func=cmd_serve, log_default="info")
@@ -300,6 +333,7 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--robots-dir", help="a folder of your own arms")
     p.add_argument("--time-scale", type=float, default=1.0, help="simulated time per real second (sim)")
     p.add_argument("--lag", type=float, default=0.0, help="first-order servo lag time constant [s] (sim)")
+    p.add_argument("--objects", metavar="FILE", help="sim: objects on the floor, as armd serve --objects takes")
     p.add_argument("--port", help="serial port or pyserial URL (ssc32, grbl; a serial port for feetech, dynamixel)")
     p.add_argument(
         "--baud", type=int, default=None, help="the controller's baud rate (default: the arm's [controller] baud)"

@@ -275,28 +275,44 @@ class Robot:
         Scanner sensors use (``distance`` [m], ``bearing`` [rad]); a sensor on an arm frame
         looks along that frame's +x and needs the joint vector ``q``.
         """
-        if sensor not in self.sensors:
-            raise BadRequest(
-                f"unknown sensor {sensor!r} on {self.name}; sensors: {', '.join(sorted(self.sensors)) or '(none)'}",
-                field="sensor",
-            )
-        s = self.sensors[sensor]
+        s = self._sensor(sensor)
         if s.mount == "scanner":
             return s.scanner_point(distance, bearing)
+        d = s.check_range(distance)
+        origin, direction = self.sensor_ray(sensor, bearing, q)
+        return origin + d * direction
+
+    def sensor_ray(
+        self, sensor: str, bearing: float = 0.0, q: FloatArray | None = None
+    ) -> tuple[FloatArray, FloatArray]:
+        """Where a range sensor looks from and along (a unit vector), in the base frame: a scanner
+        from its ``position`` at ``bearing`` [rad] in the horizontal plane; a sensor on an arm
+        frame along that frame's +x, at the joint vector ``q``."""
+        s = self._sensor(sensor)
+        if s.mount == "scanner":
+            assert s.position is not None
+            return np.array(s.position, dtype=float), np.array([math.cos(bearing), math.sin(bearing), 0.0])
         if q is None:
             raise BadRequest(
                 f"sensor {sensor!r} is on frame {s.frame!r}: its reading is converted at the arm's pose when it "
                 "was taken; give that joint vector (seed)",
                 field="seed",
             )
-        d = s.check_range(distance)
         qa = self.joint_vector(q)
         assert s.frame is not None
         fid = self.model.getFrameId(s.frame)
         data = self.data()
         pin.forwardKinematics(self.model, data, qa)
         placement = pin.updateFramePlacement(self.model, data, fid)
-        return np.array(placement.translation + d * placement.rotation[:, 0])
+        return np.array(placement.translation), np.array(placement.rotation[:, 0])
+
+    def _sensor(self, sensor: str) -> RangeSensor:
+        if sensor not in self.sensors:
+            raise BadRequest(
+                f"unknown sensor {sensor!r} on {self.name}; sensors: {', '.join(sorted(self.sensors)) or '(none)'}",
+                field="sensor",
+            )
+        return self.sensors[sensor]
 
     # -- description -----------------------------------------------------------------------
 

@@ -22,7 +22,8 @@ from armd.errors import BadRequest
 
 SERVICE, OPERATOR, GUEST = "armd-service", "operator", "guest"
 ADAPTER_KEYS_IN = ("trajectory", "gripper", "estop", "unlock")  # what an adapter hears
-ADAPTER_KEYS_OUT = ("state", "events")  # what it says
+ADAPTER_KEYS_OUT = ("state", "events", "sensors/*")  # what it says (its range sensors' readings too)
+WATCHED = ("state", "events", "trajectory", "sensors/*")  # what an operator may watch
 READ_ONLY = ("info", "fk", "ik", "plan")  # a guest's verbs, with `robots`
 TLS_ROUTER = '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },'
 TLS_CLIENT = '// link: { tls: { root_ca_certificate: "ca.pem" } },'
@@ -87,7 +88,7 @@ def router_config(
     for r in robots:
         rules += [
             f"      // -- {r}'s adapter: hears {r}'s trajectories, gripper commands, stops and unlocks; says",
-            f"      //    {r}'s state and events; declares {r}'s token. Nothing else: no other arm, no verb.",
+            f"      //    {r}'s state, events and sensors; declares {r}'s token. Nothing else: no other arm, no verb.",
             _rule(f"adapter-{r}-listen", "ingress", ["declare_subscriber"], _keys(p, r, ADAPTER_KEYS_IN)),
             _rule(f"adapter-{r}-listen-get", "egress", ["put"], _keys(p, r, ADAPTER_KEYS_IN)),
             _rule(f"adapter-{r}-report", "ingress", ["put"], _keys(p, r, ADAPTER_KEYS_OUT)),
@@ -97,13 +98,13 @@ def router_config(
             _rule(f"adapter-{r}-token", "ingress", ["liveliness_token"], [f"{p}/{r}/adapter/*"]),
         ]
     rules += [
-        "      // -- an operator: asks every verb, puts estop and unlock, watches state, events, trajectories",
+        "      // -- an operator: asks every verb, puts estop and unlock, watches state, events, trajectories, sensors",
         _rule("operator-ask", "ingress", ["query"], [f"{p}/**"]),
         _rule("operator-ask-get", "egress", ["reply", "declare_queryable"], [f"{p}/**"]),
         _rule("operator-stop", "ingress", ["put"], _keys(p, "*", ("estop", "unlock"))),
         _rule("operator-stop-see", "egress", ["declare_subscriber"], _keys(p, "*", ("estop", "unlock"))),
-        _rule("operator-watch", "ingress", ["declare_subscriber"], _keys(p, "*", ("state", "events", "trajectory"))),
-        _rule("operator-watch-get", "egress", ["put"], _keys(p, "*", ("state", "events", "trajectory"))),
+        _rule("operator-watch", "ingress", ["declare_subscriber"], _keys(p, "*", WATCHED)),
+        _rule("operator-watch-get", "egress", ["put"], _keys(p, "*", WATCHED)),
         '      // -- a guest: the read-only verbs (a "guest" user whose password is published)',
         _rule("guest-ask", "ingress", ["query"], [f"{p}/robots", *_keys(p, "*", READ_ONLY)]),
         _rule("guest-ask-get", "egress", ["reply"], [f"{p}/robots", *_keys(p, "*", READ_ONLY)]),

@@ -48,9 +48,9 @@ def test_each_arm_has_its_own_adapter_user_whose_rules_name_only_its_arm() -> No
     for arm, other in (("a1", "b2"), ("b2", "a1")):
         block = text[text.index(f'id: "adapter-{arm}-listen"') : text.index(f'id: "adapter-{arm}-token"') + 200]
         assert f"armd/{arm}/trajectory" in block and f"armd/{other}/" not in block
-        # (the one wildcard: seeing that the service follows every arm's state and events)
+        # (the one wildcard: seeing that the service follows every arm's state, events and sensors)
         assert [line for line in block.splitlines() if "armd/*/" in line] == [
-            '        key_exprs: ["armd/*/state", "armd/*/events"] },'
+            '        key_exprs: ["armd/*/state", "armd/*/events", "armd/*/sensors/*"] },'
         ]
     assert 'usernames: ["armd-adapter-a1"]' in text and 'usernames: ["armd-adapter-b2"]' in text
 
