@@ -8,7 +8,9 @@ little sooner, which this does not model). It meets the floor (``[world] ground`
 the objects: upright cylinders (``size`` [radius, height]), boxes turned about z (``size`` [x, y,
 z], ``yaw``) and spheres (``size`` [radius]), each standing on the floor at ``position`` [x,
 y]. A scanner reads, turns its servo one ``sweep_step`` and reads again, reversing at each end
-of its ``sweep``; a sensor on the arm reads along its frame where the simulated arm is.
+of its ``sweep``; a sensor on the arm reads along its frame where the simulated arm is. Each
+reads once a measurement period (its model's, over the time scale, but no more than 100 times a
+real second).
 
 A reading (JSON):
 
@@ -38,6 +40,7 @@ from armd.robots.sensors import RangeSensor, models
 from .trajectory_message import FloatArray
 
 SHAPES = {"cylinder": 2, "box": 3, "sphere": 1}  # each shape's size: how many numbers
+MIN_PERIOD = 0.01  # [s] real time between two readings of a sensor, at the least (a fast time scale's cap)
 
 
 @dataclass(frozen=True)
@@ -234,7 +237,7 @@ class SimulatedSensors:
         if not self.sensors:
             return
         period = min(m.period for m in models().values() if m.name in {s.model for s in self.sensors})
-        while not stop.wait(period / self.time_scale):
+        while not stop.wait(max(period / self.time_scale, MIN_PERIOD)):
             for s in self.sensors:
                 try:
                     self.publish(s.name, json.dumps(self.read(s)).encode())

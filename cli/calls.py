@@ -86,6 +86,24 @@ def _ik_target(args: argparse.Namespace) -> object:
     return {"sensor": args.sensor[0], "range": values[0], "bearing": values[1] if len(values) > 1 else 0.0}
 
 
+def cmd_detect(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        r = c.detect(args.robot, sweeps=args.sweeps, sensors=args.sensor)
+    if args.json:
+        print(json.dumps(r, indent=2))
+        return 0
+    objects = r["objects"]
+    print(f"{len(objects)} object(s) seen by {', '.join(r['sensors'])} over {r['sweeps']} sweep(s)")
+    for o in objects:
+        x, y, z = o["position"]
+        stable = "stable" if o["stable"] else "not stable"
+        print(
+            f"  at [{x:.3f}, {y:.3f}, {z:.3f}] m (+- {o['uncertainty'] * 1000:.0f} mm), "
+            f"{o['width'] * 1000:.0f} mm wide, by {', '.join(o['sensors'])}: {stable} (seen {o['seen']}/{o['sweeps']})"
+        )
+    return 0
+
+
 def cmd_gripper(args: argparse.Namespace) -> int:
     word = args.opening.lower()
     opening = {"open": 1.0, "close": 0.0, "closed": 0.0}.get(word)
@@ -274,6 +292,13 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
     _client_args(p)
     p.set_defaults(func=cmd_move)
+
+    p = sub.add_parser("detect", parents=[log_args], help="the objects an arm's scanning range sensors see")
+    p.add_argument("robot")
+    p.add_argument("--sweeps", type=int, default=None, help="how many last sweeps must show an object (default 2)")
+    p.add_argument("--sensor", action="append", help="a scanner to look with (default: every scanner)")
+    _client_args(p)
+    p.set_defaults(func=cmd_detect)
 
     p = sub.add_parser("gripper", parents=[log_args], help="open or close an arm's gripper: open, close or 0..1")
     p.add_argument("robot")

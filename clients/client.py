@@ -398,6 +398,15 @@ class ArmClient:
             request["clear"] = True
         return self.call(f"{robot}/world", request)
 
+    def detect(self, robot: str, *, sweeps: int | None = None, sensors: Sequence[str] | None = None) -> dict[str, Any]:
+        """The objects ``robot``'s scanning sensors see (the reply of ``detect``: its ``objects``)."""
+        req: dict[str, Any] = {}
+        if sweeps is not None:
+            req["sweeps"] = sweeps
+        if sensors is not None:
+            req["sensors"] = list(sensors)
+        return self.call(f"{robot}/detect", req)
+
     def wait_until_still(
         self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0, tolerance: float = 2e-3
     ) -> dict[str, Any]:

@@ -14,23 +14,35 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 import uuid
 from collections.abc import Callable, Mapping
 from typing import Any
 
 from armd import planning, solvers
-from armd.errors import ArmdError, BadRequest, BatchTooLarge, NoAdapter, PositionUnknown, Rejected, StartMismatch
+from armd.errors import (
+    ArmdError,
+    BadRequest,
+    BatchTooLarge,
+    NoAdapter,
+    NotReady,
+    PositionUnknown,
+    Rejected,
+    StartMismatch,
+)
 from armd.planning import JointState
 from armd.robots import Robot
 from armd.robots.collision import SIZES, Obstacle
 
 from .deadline import Deadline
 from .protocol import (
+    DETECT,
     FK,
     GRIPPER,
     IK_BATCH,
     IK_ONE,
     MAX_OBSTACLES,
+    MAX_SWEEPS,
     MOVE,
     NOTHING,
     PLAN,
@@ -39,7 +51,11 @@ from .protocol import (
     Limits,
     check,
 )
+from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
+
+SENSOR_POLL = 0.05  # [s] how often detect looks for the sweeps it waits for
+SENSOR_MARGIN = 0.1  # [s] of the deadline kept for the answer
 
 Publish = Callable[[Robot, dict[str, Any]], Any]  # (a trajectory's: the id of the adapter that accepted it)
 AdapterCount = Callable[[Robot], int]
@@ -55,8 +71,10 @@ class Handlers:
         adapters: AdapterCount,
         publish_gripper: Publish | None = None,
         publish_estop: Publish | None = None,
+        sensor_book: SensorBook | None = None,
     ) -> None:
         self.arms = dict(arms)
+        self.sensor_book = sensor_book
         self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
         self.publish_estop: Publish = publish_estop or (lambda arm, msg: None)
         self.book = book
@@ -221,6 +239,47 @@ class Handlers:
         ident = uuid.uuid4().hex
         self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": ident})
         return {"opening": opening, "pulse": pulse, "id": ident}
+
+    # -- what the sensors see ----------------------------------------------------------------
+
+    def detect(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """The objects the arm's scanners see (:mod:`solvers.detect`): in the last ``sweeps``
+        complete sweeps of each (default 2: the seed's test of a stable object), waiting within
+        the deadline for them if they have not come yet."""
+        req = check(DETECT, req)
+        sweeps = req.get("sweeps", 2)
+        if sweeps != int(sweeps):
+            raise BadRequest(f"sweeps must be a whole number in [1, {MAX_SWEEPS}], got {sweeps!r}", field="sweeps")
+        n = int(sweeps)
+        scanners = [s.name for s in arm.sensors.values() if s.mount == "scanner"]
+        names = req.get("sensors", scanners)
+        for name in names:
+            if name not in arm.sensors or arm.sensors[name].mount != "scanner":
+                raise BadRequest(
+                    f"{name!r} is not a scanning sensor of {arm.name} (its scanners: {', '.join(scanners) or 'none'})",
+                    field="sensors",
+                )
+        if not names:
+            raise BadRequest(f"{arm.name} has no scanning sensor", field="sensors")
+        if self.adapters(arm) == 0:
+            raise NoAdapter(f"no adapter of {arm.name} is alive to read its sensors", robot=arm.name)
+        book = self.sensor_book
+        assert book is not None
+        while True:
+            got = {name: book.sweeps(arm.name, name, n) for name in names}
+            short = {name: len(s) for name, s in got.items() if len(s) < n}
+            if not short:
+                break
+            if time.monotonic() + SENSOR_POLL > deadline.at - SENSOR_MARGIN:
+                said = ", ".join(f"{k} {v}" for k, v in short.items())
+                raise NotReady(
+                    f"{arm.name}'s scanners have not swept {n} time(s) yet (complete sweeps: {said}); ask again, "
+                    "or with a longer deadline",
+                    robot=arm.name,
+                )
+            time.sleep(SENSOR_POLL)
+        objects = solvers.detect(arm, got)
+        return {"objects": [o.to_dict() for o in objects], "sweeps": n, "sensors": list(names)}
 
     # -- the arm's world ---------------------------------------------------------------------
 

@@ -23,7 +23,7 @@ import orjson
 from armd.errors import ArmdError, BadRequest, PayloadTooLarge
 
 PROTOCOL_VERSION = 1
-VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper", "world")
+VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper", "world", "detect")
 ENVELOPE = ("protocol", "deadline")  # fields any request may carry, whatever its verb
 
 
@@ -533,6 +533,14 @@ IK_BATCH = Obj(
 PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),), top=True)
 MOVE = Obj(_MOTION, required=PLAN.required, top=True)
 GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)
+MAX_SWEEPS = 8  # sweeps one detect may look at (the service keeps as many)
+DETECT = Obj(
+    {
+        "sensors": ListOf(Word(), min_items=1, items_are="scanning sensors' names"),
+        "sweeps": Num("", 1, MAX_SWEEPS),
+    },
+    top=True,
+)
 # an obstacle's shapes: robots.collision.SIZES's (not imported: the client loads this module
 # without Pinocchio; tests/test_world.py checks they agree)
 SHAPES = ("box", "sphere", "cylinder")

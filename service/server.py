@@ -53,6 +53,7 @@ from armd.robots import Robot
 from .deadline import Deadline
 from .handlers import Handlers
 from .protocol import VERBS, Limits, decode, encode, request_deadline
+from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
 
 log = logging.getLogger(__name__)
@@ -109,6 +110,7 @@ class Service:
         self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
         self._ignored: dict[str, int] = {}  # states ignored, by reason
         self._said = 0.0  # when ignored states were last logged
+        self.sensor_book = SensorBook(self.arms, self._is_live)
         self.handlers = Handlers(
             self.arms,
             self.book,
@@ -117,6 +119,7 @@ class Service:
             self._adapter_count,
             self._publish_gripper,
             self._publish_estop,
+            sensor_book=self.sensor_book,
         )
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
@@ -153,6 +156,10 @@ class Service:
             session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
             session.declare_subscriber(f"{self.prefix}/*/events", self._on_event),
+            session.declare_subscriber(
+                f"{self.prefix}/*/sensors/*",
+                lambda sample: self.sensor_book.on_reading(str(sample.key_expr), sample.payload.to_bytes()),
+            ),
             session.liveliness().declare_subscriber(f"{self.prefix}/*/adapter/*", self._on_adapter, history=True),
             session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
         ]
@@ -371,6 +378,10 @@ class Service:
             encoding=JSON,
             congestion_control=zenoh.CongestionControl.BLOCK,
         )
+
+    def _is_live(self, robot: str, adapter: str) -> bool:
+        with self._lock:
+            return adapter in self._adapters.get(robot, ())
 
     def _adapter_count(self, arm: Robot) -> int:
         with self._lock:

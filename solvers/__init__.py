@@ -8,6 +8,7 @@
 """
 
 from .batch import BatchIKResult, reachable, solve_ik_batch
+from .detect import DetectedObject, detect
 from .ik import DEFAULT_TOLERANCE, solve_ik
 from .result import APPROXIMATE, COLLISION, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, SensorReading, approach_pitch, target_point
@@ -22,9 +23,11 @@ __all__ = [
     "UNREACHABLE",
     "BatchIKResult",
     "Branch",
+    "DetectedObject",
     "IKResult",
     "SensorReading",
     "approach_pitch",
+    "detect",
     "reachable",
     "solve_ik",
     "solve_ik_batch",

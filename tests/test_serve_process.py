@@ -145,7 +145,8 @@ def test_cli_sensor_targets_and_the_gripper(served: str) -> None:
 
 def test_the_simulated_sensors_see_the_objects_the_operator_put_down(served: str) -> None:
     """``armd serve --sim --objects FILE``: the insomniac's left scanner sees the can 0.25 m ahead
-    between its edges; a malformed file is refused before anything starts."""
+    between its edges, and ``armd detect`` finds it where it is; a malformed file is refused
+    before anything starts."""
     import threading
 
     import zenoh
@@ -170,6 +171,14 @@ def test_the_simulated_sensors_see_the_objects_the_operator_put_down(served: str
     seen = [r for r in got if r["range"] is not None]
     assert seen and all(abs(float(r["bearing"])) <= edge + 1e-6 for r in seen)  # type: ignore[arg-type]
     assert min(float(r["range"]) for r in seen) < 0.26  # type: ignore[arg-type]
+    r = cli(served, "detect", "insomniac", "--json")
+    assert r.returncode == 0, r.stderr
+    (can,) = json.loads(r.stdout)["objects"]
+    assert can["stable"] and math.dist(can["position"][:2], CAN["position"]) <= 3 * can["uncertainty"]
+    r = cli(served, "detect", "insomniac")
+    assert r.returncode == 0 and "1 object(s) seen by et_left, et_right" in r.stdout, r.stdout
+    r = cli(served, "detect", "insomniac", "--sensor", "gripper_et")
+    assert r.returncode == 1 and "not a scanning sensor" in r.stderr
     bad = subprocess.run(
         [
             sys.executable,

@@ -255,6 +255,12 @@ class NoAdapter(ArmdError):
     code = "no_adapter"
 
 
+class NotReady(ArmdError):
+    """What was asked needs readings that have not come yet (a scanner's sweeps, after a start)."""
+
+    code = "not_ready"
+
+
 class Rejected(ArmdError):
     """Every live adapter of the arm refused the trajectory (``reason``: the last one's word,
     ``error``: its error object)."""
