@@ -86,6 +86,37 @@ def _ik_target(args: argparse.Namespace) -> object:
     return {"sensor": args.sensor[0], "range": values[0], "bearing": values[1] if len(values) > 1 else 0.0}
 
 
+def cmd_sequence(args: argparse.Namespace) -> int:
+    target = _ik_target(args)
+    with _client(args) as c:
+        call = c.pick if args.command == "pick" else c.place
+        r = call(
+            args.robot,
+            target,
+            approach=args.approach,
+            above=args.above,
+            lift=args.lift,
+            speed=args.speed,
+            timeout=120.0,
+        )
+    if args.json:
+        print(json.dumps(r, indent=2))
+    else:
+        x, y, z = r["target"]
+        print(f"{args.command} at [{x:.3f}, {y:.3f}, {z:.3f}] m, approach {r['approach']}:")
+        for s in r["steps"]:
+            what = (
+                f"gripper {s['opening']:g}"
+                if "opening" in s
+                else f"{s['path']} to {s['target']}, {s['duration']:.2f} s"
+            )
+            mark = "done" if s["done"] else ("STOPPED" if s["step"] == r["stopped_at"] else "not done")
+            print(f"  {s['step']}: {what}: {mark}")
+        if not r["done"]:
+            print(f"stopped at {r['stopped_at']}: {r['reason']}")
+    return 0 if r["done"] else 1
+
+
 def cmd_detect(args: argparse.Namespace) -> int:
     with _client(args) as c:
         r = c.detect(args.robot, sweeps=args.sweeps, sensors=args.sensor)
@@ -292,6 +323,18 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("--wait", action="store_true", help="return when the arm is at rest at the goal")
     _client_args(p)
     p.set_defaults(func=cmd_move)
+
+    for verb, what in (("pick", "open, above, descend, close, lift"), ("place", "above, descend, open, rise")):
+        p = sub.add_parser(verb, parents=[log_args], help=f"{verb} an object at X Y Z (or --sensor): {what}")
+        p.add_argument("robot")
+        p.add_argument("xyz", nargs="*", metavar="X/Y/Z", help="the object's centre where it is held [m], base frame")
+        p.add_argument("--sensor", nargs="+", metavar="NAME RANGE [BEARING]", help="a range sensor's reading instead")
+        p.add_argument("--approach", choices=["perpendicular", "parallel"], help="from above (default) or level")
+        p.add_argument("--above", type=float, help="the pre-grasp pose's distance from it [m] (default 0.06)")
+        p.add_argument("--lift", type=float, help="how far to lift (pick) or rise (place) [m] (default 0.06)")
+        p.add_argument("--speed", type=float, help="fraction of the limits (default 0.5)")
+        _client_args(p)
+        p.set_defaults(func=cmd_sequence)
 
     p = sub.add_parser("detect", parents=[log_args], help="the objects an arm's scanning range sensors see")
     p.add_argument("robot")

@@ -398,6 +398,21 @@ class ArmClient:
             request["clear"] = True
         return self.call(f"{robot}/world", request)
 
+    def pick(self, robot: str, target: object, **options: Any) -> dict[str, Any]:
+        """Seed 000's grasp of ``target`` (``approach``, ``above``, ``lift``, ``speed``: the verb's
+        options): open, above, descend, close, lift. The reply lists the steps, ``done``, and where
+        it stopped and why if it did. It waits for the arm: ``timeout`` [s] (default 60)."""
+        return self._sequence("pick", robot, target, options)
+
+    def place(self, robot: str, target: object, **options: Any) -> dict[str, Any]:
+        """The grasp reversed: above, descend, open, rise (as :meth:`pick`)."""
+        return self._sequence("place", robot, target, options)
+
+    def _sequence(self, verb: str, robot: str, target: object, options: dict[str, Any]) -> dict[str, Any]:
+        timeout = float(options.pop("timeout", 60.0))
+        req = {"target": _jsonable(target), **{k: v for k, v in options.items() if v is not None}}
+        return self.call(f"{robot}/{verb}", req, timeout=timeout)
+
     def detect(self, robot: str, *, sweeps: int | None = None, sensors: Sequence[str] | None = None) -> dict[str, Any]:
         """The objects ``robot``'s scanning sensors see (the reply of ``detect``: its ``objects``)."""
         req: dict[str, Any] = {}

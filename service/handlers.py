@@ -47,11 +47,14 @@ from .protocol import (
     NOTHING,
     PLAN,
     PROTOCOL_VERSION,
+    SEQUENCE,
     WORLD,
     Limits,
     check,
 )
 from .sensor_book import SensorBook
+from .sequence import ABOVE, LIFT, SPEED, Sequence, check_distance, check_speed, sequence_point
+from .sequence import steps as sequence_steps
 from .state import StateBook, implausible, reported_state
 
 SENSOR_POLL = 0.05  # [s] how often detect looks for the sweeps it waits for
@@ -75,6 +78,7 @@ class Handlers:
     ) -> None:
         self.arms = dict(arms)
         self.sensor_book = sensor_book
+        self._stop_counts: dict[str, int] = {}  # per arm: stops seen (a pick or place under way ends at one)
         self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
         self.publish_estop: Publish = publish_estop or (lambda arm, msg: None)
         self.book = book
@@ -213,6 +217,7 @@ class Handlers:
         duration and rest pose are the service's estimate from what it knows of the arm."""
         check(NOTHING, req)
         ident = uuid.uuid4().hex
+        self.note_stop(arm.name)
         self.publish_estop(arm, {"id": ident, "by": "service"})
         known = self.book.current(arm)
         try:
@@ -239,6 +244,61 @@ class Handlers:
         ident = uuid.uuid4().hex
         self.publish_gripper(arm, {"opening": opening, "pulse": pulse, "id": ident})
         return {"opening": opening, "pulse": pulse, "id": ident}
+
+    def note_stop(self, robot: str) -> None:
+        """The arm was stopped (a ``stop``, an adapter's abort or estop): a pick or place under way ends."""
+        with self._world_lock:
+            self._stop_counts[robot] = self._stop_counts.get(robot, 0) + 1
+
+    # -- sequences: pick and place -------------------------------------------------------------
+
+    def pick(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """Seed 000's grasp (:mod:`service.sequence`): open, above, descend, close, lift."""
+        return self._sequence(arm, "pick", req, deadline)
+
+    def place(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        """The grasp reversed: above, descend, open, rise."""
+        return self._sequence(arm, "place", req, deadline)
+
+    def _sequence(self, arm: Robot, verb: str, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        req = check(SEQUENCE, req, arm.joint_names)
+        if arm.gripper is None:
+            raise BadRequest(f"{arm.name} has no gripper to {verb} with", field="target")
+        approach = req.get("approach", "perpendicular")
+        if approach not in ("perpendicular", "parallel"):
+            raise BadRequest(f"approach must be 'perpendicular' or 'parallel', got {approach!r}", field="approach")
+        above = check_distance(req.get("above"), "above", ABOVE)
+        lift = check_distance(req.get("lift"), "lift", LIFT)
+        speed = check_speed(req.get("speed", SPEED))
+        if self.adapters(arm) == 0:
+            raise NoAdapter(f"no adapter drives {arm.name}: nothing would {verb}", robot=arm.name)
+        on_arm = _reads_on_the_arm(arm, req)
+        known = self._present(arm, req) if on_arm else self.book.current(arm)
+        point = sequence_point(arm, req["target"], known.state.position if on_arm else None)
+        with self._world_lock:
+            stops = self._stop_counts.get(arm.name, 0)
+
+        def fresh() -> Deadline:
+            return Deadline(time.monotonic(), self.limits.deadline)
+
+        seq = Sequence(
+            arm,
+            sequence_steps(arm, verb, point, approach, above, lift),
+            speed=speed,
+            plan=lambda r, start: planning.plan(
+                arm, start, r["goal"], path=r["path"], speed=r["speed"], max_samples=self.limits.max_samples
+            ),
+            move=lambda r: self.move(arm, r, fresh()),
+            gripper=lambda opening: self.gripper(arm, {"opening": opening}, fresh()),
+            present=lambda: self.book.current(arm),
+            stops=lambda: self._stop_counts.get(arm.name, 0),
+            check=deadline.check,
+        )
+        seq.check_all(_at_the_limits(arm, known.state))  # every step, before anything moves
+        if self._stop_counts.get(arm.name, 0) != stops:
+            raise Rejected(f"{arm.name} was stopped while the {verb} was planned: nothing moved", robot=arm.name)
+        deadline.check()
+        return {"verb": verb, "target": [float(x) for x in point], "approach": approach, **seq.run()}
 
     # -- what the sensors see ----------------------------------------------------------------
 

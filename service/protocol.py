@@ -23,7 +23,7 @@ import orjson
 from armd.errors import ArmdError, BadRequest, PayloadTooLarge
 
 PROTOCOL_VERSION = 1
-VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper", "world", "detect")
+VERBS = ("info", "fk", "ik", "plan", "move", "stop", "gripper", "world", "detect", "pick", "place")
 ENVELOPE = ("protocol", "deadline")  # fields any request may carry, whatever its verb
 
 
@@ -533,6 +533,17 @@ IK_BATCH = Obj(
 PLAN = Obj({"start": START, **_MOTION}, required=(("goal", 'a joint vector, or {"target": [x, y, z], ...}'),), top=True)
 MOVE = Obj(_MOTION, required=PLAN.required, top=True)
 GRIPPER = Obj({"opening": Num("", 0.0, 1.0)}, required=(("opening", "from 0 (closed) to 1 (open)"),), top=True)
+SEQUENCE = Obj(  # pick and place
+    {
+        "target": TARGET,
+        "approach": Word(("perpendicular", "parallel")),
+        "above": Num("m", 0.0, 0.3),
+        "lift": Num("m", 0.0, 0.3),
+        "speed": Num(),
+    },
+    required=(("target", "[x, y, z] in metres (the object's centre where it is grasped), or a sensor reading"),),
+    top=True,
+)
 MAX_SWEEPS = 8  # sweeps one detect may look at (the service keeps as many)
 DETECT = Obj(
     {

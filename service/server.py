@@ -124,6 +124,8 @@ class Service:
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
+        # picks and places wait for the arm for seconds: never in the way of a move or a stop
+        self._sequences = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-sequence")
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {
             name: session.declare_publisher(
@@ -207,6 +209,8 @@ class Service:
         )
         if verb == "stop":
             return self._stops
+        if verb in ("pick", "place"):
+            return self._sequences
         return self._commands if verb in ("move", "gripper") else self._pool
 
     def _serve(
@@ -342,9 +346,15 @@ class Service:
             event, ident, adapter = msg.get("event"), msg.get("id"), msg.get("adapter")
         except (orjson.JSONDecodeError, AttributeError):
             return
+        robot = str(sample.key_expr).split("/")[-2]
+        # a stop (an estop's, a fault's): a pick or place under way ends there (a trajectory replaced
+        # by the next one is no stop: a sequence's next step may come before its adapter said done)
+        stopped = event == "accepted" and msg.get("trajectory") == "stop"
+        aborted = event == "aborted" and not str(msg.get("reason", "")).startswith("replaced by")
+        if (stopped or aborted) and self._is_live(robot, str(adapter)):
+            self.handlers.note_stop(robot)
         if event not in ("accepted", "rejected") or not isinstance(ident, str) or not isinstance(adapter, str):
             return
-        robot = str(sample.key_expr).split("/")[-2]
         with self._lock:
             pending = self._pending.get(ident)
             live = adapter in self._adapters.get(robot, ())
@@ -526,6 +536,7 @@ class Service:
         self._pool.shutdown(wait=True, cancel_futures=True)
         self._stops.shutdown(wait=True, cancel_futures=True)
         self._commands.shutdown(wait=True, cancel_futures=True)
+        self._sequences.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
 
 

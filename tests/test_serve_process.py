@@ -141,6 +141,12 @@ def test_cli_sensor_targets_and_the_gripper(served: str) -> None:
     assert r.returncode == 0 and json.loads(r.stdout)["opening"] == 0.5
     r = cli(served, "gripper", "insomniac", "1.5")
     assert r.returncode == 1 and "opening" in r.stderr
+    r = cli(served, "pick", "insomniac", "0.25", "0.05", "0.06")
+    assert r.returncode == 0 and "lift: line to" in r.stdout and "STOPPED" not in r.stdout, (r.stdout, r.stderr)
+    r = cli(served, "place", "insomniac", "0.25", "0.05", "0.06", "--json")
+    assert r.returncode == 0 and json.loads(r.stdout)["done"]
+    r = cli(served, "pick", "insomniac", "0.9", "0.0", "0.1")
+    assert r.returncode == 1 and r.stderr.startswith("armd: error: above:"), r.stderr
 
 
 def test_the_simulated_sensors_see_the_objects_the_operator_put_down(served: str) -> None:
