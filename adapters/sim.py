@@ -15,6 +15,7 @@ import math
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import zenoh
@@ -25,6 +26,8 @@ from armd.robots import Robot
 from .base import Adapter
 from .sim_sensors import FloorObject, SimulatedSensors
 from .trajectory_message import Command
+
+HOLDS_BELOW = 0.5  # a gripper closed below this opening holds what its tool point is in
 
 
 class SimAdapter(Adapter):
@@ -63,6 +66,7 @@ class SimAdapter(Adapter):
             time_scale=time_scale,
             seed=sensor_seed,
         )
+        self.held: tuple[str, np.ndarray] | None = None  # the object the gripper holds, its offset from the tool
         self._sensing = threading.Thread(
             target=self.sensors.run, args=(self._stop,), name=f"sim-sensors-{robot.name}", daemon=True
         )
@@ -81,7 +85,36 @@ class SimAdapter(Adapter):
         else:
             self.position = p.copy()
         self.velocity, self.acceleration = v.copy(), a.copy()
+        self._carry()
         return ts >= cmd.duration and (self.lag == 0 or float(np.max(np.abs(p - self.position))) < 1e-4)
+
+    def grip(self, opening: float) -> None:
+        super().grip(opening)
+        objects = list(self.sensors.objects)
+        tool = self.robot.fk(self.position)
+        if opening < HOLDS_BELOW and self.held is None:
+            for o in objects:
+                if o.holds(tool, self.sensors.ground):
+                    self.held = (o.name, np.array([*o.position, self.sensors.ground + o.z]) - tool)
+                    break
+        elif opening >= HOLDS_BELOW and self.held is not None:
+            name, _ = self.held
+            self.held = None
+            self.sensors.set_objects([replace(o, z=0.0) if o.name == name else o for o in objects])  # (dropped)
+
+    def _carry(self) -> None:
+        """The object held, where the tool point has taken it."""
+        if self.held is None:
+            return
+        name, offset = self.held
+        at = self.robot.fk(self.position) + offset
+        z = max(float(at[2]) - self.sensors.ground, 0.0)
+        self.sensors.set_objects(
+            [
+                replace(o, position=(float(at[0]), float(at[1])), z=z) if o.name == name else o
+                for o in self.sensors.objects
+            ]
+        )
 
     def hold(self) -> None:
         self.velocity = np.zeros(self.robot.nq)

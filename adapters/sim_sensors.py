@@ -52,6 +52,7 @@ class FloorObject:
     size: tuple[float, ...]
     position: tuple[float, float]
     yaw: float = 0.0
+    z: float = 0.0  # [m] its bottom above the floor (0: standing on it; more: carried by the gripper)
 
     @classmethod
     def of(cls, spec: Mapping[str, Any], where: str) -> FloorObject:
@@ -73,6 +74,17 @@ class FloorObject:
             raise BadRequest(f"{where}.yaw must be a number [rad]", field=f"{where}.yaw")
         return cls(str(spec.get("name", where)), str(shape), tuple(map(float, size)), (pos[0], pos[1]), float(yaw))  # type: ignore[index, arg-type]
 
+    def holds(self, point: FloatArray, ground: float, slack: float = 0.01) -> bool:
+        """Whether ``point`` [m] (a gripper's) is within the object, give or take ``slack``."""
+        rel = point - np.array([*self.position, ground + self.z])
+        c, s = math.cos(self.yaw), math.sin(self.yaw)
+        x, y = c * rel[0] + s * rel[1], -s * rel[0] + c * rel[1]
+        if not -slack <= rel[2] <= self.height + slack:
+            return False
+        if self.shape == "box":
+            return abs(x) <= self.size[0] / 2 + slack and abs(y) <= self.size[1] / 2 + slack
+        return math.hypot(x, y) <= self.size[0] + slack
+
     @property
     def height(self) -> float:
         return {
@@ -84,6 +96,7 @@ class FloorObject:
     def hit(self, origin: FloatArray, direction: FloatArray, ground: float) -> float:
         """How far along the ray (``direction`` a unit vector) it first meets this object [m], or inf."""
         cx, cy = self.position
+        ground = ground + self.z
         if self.shape == "sphere":
             r = self.size[0]
             oc = origin - np.array([cx, cy, ground + r])

@@ -101,3 +101,34 @@ def test_a_stop_ends_a_pick_where_it_is(client: ArmClient, sim: Any, router: str
     assert not r["done"] and r["stopped_at"] in ("above", "descend") and "stop" in r["reason"], r
     assert not any(s["done"] for s in r["steps"] if s["step"] in ("close", "lift"))
     assert sim.gripper_opening == 1.0  # (opened, never closed)
+
+
+def test_the_simulated_gripper_carries_what_it_closes_on_and_drops_it_where_it_opens(
+    router: str, service: Any, client: ArmClient
+) -> None:
+    """A can on the simulated insomniac's floor: picked at its middle, it rises with the tool;
+    placed on the arm's left, it stands there; a gripper closed on nothing holds nothing."""
+    from armd.adapters.sim_sensors import objects_of
+    from armd.service.zconfig import network_config
+
+    arm = robots.load("insomniac")
+    session = zenoh.open(network_config(connect=[router]))
+    can = {"name": "can", "shape": "cylinder", "size": [0.03, 0.12], "position": [0.28, 0.0]}
+    sim = SimAdapter(session, arm, time_scale=5.0, objects=objects_of([can]))
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the sim's token")
+        client.gripper("insomniac", 0.0)  # (closed on nothing, at neutral)
+        time.sleep(0.2)
+        assert sim.held is None
+        r = client.pick("insomniac", [0.28, 0.0, 0.06], lift=0.08)
+        assert r["done"], r
+        (held,) = sim.sensors.objects
+        assert sim.held is not None and held.position == pytest.approx((0.28, 0.0), abs=1e-3)
+        assert held.z == pytest.approx(0.08, abs=2e-3)  # lifted with the tool
+        r = client.place("insomniac", [0.05, 0.25, 0.06])
+        assert r["done"], r
+        (put,) = sim.sensors.objects
+        assert sim.held is None and put.z == 0.0 and put.position == pytest.approx((0.05, 0.25), abs=2e-3)
+    finally:
+        sim.close()
+        session.close()
