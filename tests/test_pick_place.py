@@ -87,7 +87,10 @@ def test_a_target_out_of_reach_or_colliding_moves_nothing(client: ArmClient, sim
     assert trajectories == [] and grips == []
 
 
-def test_a_stop_ends_a_pick_where_it_is(client: ArmClient, sim: Any, router: str) -> None:
+@pytest.mark.parametrize("how", ["stop", "estop"])
+def test_a_stop_or_an_estop_ends_a_pick_where_it_is(client: ArmClient, sim: Any, router: str, how: str) -> None:
+    """A ``stop`` through the service, or an ``estop`` straight to the adapters (the service
+    hears of it from their events): the pick ends at the step it was at."""
     from armd.clients import ArmClient as Client
 
     done: list[dict[str, Any]] = []
@@ -95,7 +98,7 @@ def test_a_stop_ends_a_pick_where_it_is(client: ArmClient, sim: Any, router: str
     runner.start()
     with Client(router) as other:
         wait_for(lambda: other.state("insomniac")["moving"], timeout=10, what="the pick moving")
-        other.stop("insomniac")
+        other.stop("insomniac") if how == "stop" else other.estop("insomniac", wait=1.0)
     runner.join(timeout=30)
     (r,) = done
     assert not r["done"] and r["stopped_at"] in ("above", "descend") and "stop" in r["reason"], r

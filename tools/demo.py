@@ -5,7 +5,9 @@ a running ``armd serve``), starts the service and one simulated arm per catalogu
 as any client would, over Zenoh: IK with each approach mode, an unreachable target, a joint
 move, a Cartesian line move and a stop in the middle of a move. It prints one table row per
 request (target, status, error, round-trip time) and writes a trajectory plot of every move
-and a workspace map of every arm to a folder it names.
+and a workspace map of every arm to a folder it names. On the insomniac it then plays seed
+000's scenario (:mod:`.seed000`): a can on its floor, found by its scanners, picked up and put
+down on its left, the can's final place read off the simulator's floor.
 
 Targets are chosen for each arm from its own workspace (the batch IK's reachability at a few
 candidate points), so the script needs no numbers of any particular arm.
@@ -198,6 +200,31 @@ def print_row(row: Row) -> None:
     )
 
 
+def _seed000(client: ArmClient, sim: Any, demo: Demo, say: Callable[[str], None]) -> None:
+    """Seed 000's scenario (:mod:`.seed000`) on the simulated insomniac: a row for what the
+    sensors found (its error: from where the can is), the pick and the place (its error: the
+    can's place from where it was asked to go, read off the simulator's floor)."""
+    from . import seed000
+
+    started = time.perf_counter()
+    r = seed000.run(client, say)
+    ms = (time.perf_counter() - started) * 1000
+    found = r["found"]
+    truth = np.array(seed000.CAN["position"], dtype=float)
+    err = float(np.linalg.norm(np.array(found["position"][:2]) - truth))
+    arm = seed000.ROBOT
+    demo.record(
+        Row(arm, "seed000 detect", _fmt(found["position"]), "stable", err, ms, f"+- {found['uncertainty']:.4f} m")
+    )
+    pick = r["pick"]
+    demo.record(Row(arm, "seed000 pick", _fmt(pick["target"]), "done" if pick["done"] else "stopped", None, ms))
+    place = r["place"]
+    (can,) = [o for o in sim.sensors.objects if o.name == seed000.CAN["name"]]
+    put = float(np.linalg.norm(np.array(can.position) - np.array(r["put_at"])))
+    status = "done" if place is not None and place["done"] and can.z == 0.0 else "stopped"
+    demo.record(Row(arm, "seed000 place", _fmt(r["put_at"]), status, put, ms, "the can, on the floor"))
+
+
 def run(
     names: Sequence[str],
     out: Path,
@@ -227,7 +254,12 @@ def run(
     zenoh.init_log_from_env_or("error")
     session = zenoh.open(network_config(listen=[endpoint]))
     service = Service(session, {n: arms[n] for n in chosen})
-    sims = [SimAdapter(session, arms[n], time_scale=time_scale) for n in chosen]
+    from armd.adapters.sim_sensors import objects_of
+
+    from . import seed000
+
+    world = {seed000.ROBOT: objects_of([seed000.CAN])}  # (seed 000's scenario: a can on the insomniac's floor)
+    sims = {n: SimAdapter(session, arms[n], time_scale=time_scale, objects=world.get(n, [])) for n in chosen}
     rows: list[Row] = []
     say(f"armd demo: service and simulated arms on {endpoint}; plots in {out.resolve()}/")
     say(f"{'arm':<10} {'case':<16} {'target / goal [m]':<26} {'status':<12} {'error m':>8} {'ms':>8}  note")
@@ -236,8 +268,10 @@ def run(
             demo = Demo(client, out, rows, echo)
             for name in chosen:
                 demo.run(arms[name], workspace_step)
+            if seed000.ROBOT in chosen:
+                _seed000(client, sims[seed000.ROBOT], demo, say)
     finally:
-        for sim in sims:
+        for sim in sims.values():
             sim.close()
         service.close()
         session.close()
