@@ -24,6 +24,7 @@ from armd.errors import (
     ArmdError,
     BadRequest,
     BatchTooLarge,
+    Busy,
     NoAdapter,
     NotReady,
     PositionUnknown,
@@ -79,6 +80,7 @@ class Handlers:
         self.arms = dict(arms)
         self.sensor_book = sensor_book
         self._stop_counts: dict[str, int] = {}  # per arm: stops seen (a pick or place under way ends at one)
+        self._sequencing: set[str] = set()  # arms running a pick or place (one at a time)
         self.publish_gripper: Publish = publish_gripper or (lambda arm, msg: None)
         self.publish_estop: Publish = publish_estop or (lambda arm, msg: None)
         self.book = book
@@ -277,6 +279,29 @@ class Handlers:
         point = sequence_point(arm, req["target"], known.state.position if on_arm else None)
         with self._world_lock:
             stops = self._stop_counts.get(arm.name, 0)
+            if arm.name in self._sequencing:
+                raise Busy(f"{arm.name} is running a pick or place already: one at a time", robot=arm.name)
+            self._sequencing.add(arm.name)
+        try:
+            return self._run_sequence(arm, verb, req, deadline, known, point, approach, above, lift, speed, stops)
+        finally:
+            with self._world_lock:
+                self._sequencing.discard(arm.name)
+
+    def _run_sequence(
+        self,
+        arm: Robot,
+        verb: str,
+        req: Mapping[str, Any],
+        deadline: Deadline,
+        known: Any,
+        point: Any,
+        approach: str,
+        above: float,
+        lift: float,
+        speed: float,
+        stops: int,
+    ) -> dict[str, Any]:
 
         def fresh() -> Deadline:
             return Deadline(time.monotonic(), self.limits.deadline)
@@ -292,13 +317,14 @@ class Handlers:
             gripper=lambda opening: self.gripper(arm, {"opening": opening}, fresh()),
             present=lambda: self.book.current(arm),
             stops=lambda: self._stop_counts.get(arm.name, 0),
+            estop=lambda: self.publish_estop(arm, {"id": uuid.uuid4().hex, "by": "service"}),
             check=deadline.check,
         )
         seq.check_all(_at_the_limits(arm, known.state))  # every step, before anything moves
         if self._stop_counts.get(arm.name, 0) != stops:
             raise Rejected(f"{arm.name} was stopped while the {verb} was planned: nothing moved", robot=arm.name)
         deadline.check()
-        return {"verb": verb, "target": [float(x) for x in point], "approach": approach, **seq.run()}
+        return {"verb": verb, "target": [float(x) for x in point], "approach": approach, **seq.run(stops)}
 
     # -- what the sensors see ----------------------------------------------------------------
 

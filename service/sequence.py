@@ -105,7 +105,7 @@ class Sequence:
     """One pick or place on ``arm``, through the service's own verbs: ``plan`` (a step planned
     from a start), ``move`` (a step sent, as the verb), ``gripper``, ``present`` (where the arm
     is, as the service knows it), ``stops`` (how many stops the arm has had: one more means
-    stop)."""
+    stop), ``estop`` (the arm stopped again: a step that went out after a stop's estop)."""
 
     def __init__(
         self,
@@ -118,10 +118,12 @@ class Sequence:
         gripper: Callable[[float], object],
         present: Callable[[], Any],
         stops: Callable[[], int],
+        estop: Callable[[], None],
         check: Callable[[], None],
     ) -> None:
         self.arm, self.todo, self.speed = arm, todo, speed
         self._plan, self._move, self._gripper, self._present, self._stops = plan, move, gripper, present, stops
+        self._estop = estop
         self._check = check
 
     def check_all(self, start: JointState) -> None:
@@ -141,9 +143,9 @@ class Sequence:
                 raise
             state = JointState.at_rest(np.array(traj.position[-1]))
 
-    def run(self) -> dict[str, Any]:
-        """Each step in turn; the reply: the steps, whether all were done, where it stopped and why."""
-        stops = self._stops()
+    def run(self, stops: int) -> dict[str, Any]:
+        """Each step in turn, unless the arm has had a stop since ``stops`` (its count when the
+        sequence was asked); the reply: the steps, whether all were done, where it stopped and why."""
         for s in self.todo:
             why = self._step(s, stops)
             if why is not None:
@@ -154,15 +156,16 @@ class Sequence:
     def _step(self, s: Step, stops: int) -> str | None:
         if self._stops() != stops:
             return "a stop was asked"
-        if s.kind == "gripper":
-            self._gripper(s.opening)
-            if self._wait(GRIPPER_WAIT, stops):
-                return "a stop was asked"
-            return None
         try:
+            if s.kind == "gripper":
+                self._gripper(s.opening)
+                return "a stop was asked" if self._wait(GRIPPER_WAIT, stops) else None
             r = self._move({"goal": s.goal, "path": s.path, "speed": self.speed})
         except ArmdError as e:
             return f"{e.code}: {e.message}"
+        if self._stops() != stops:  # a stop while the step was planned: it may have gone out after the stop's estop
+            self._estop()
+            return "a stop was asked"
         s.duration = float(r["duration"])
         goal = np.array(r["goal"])
         until = time.monotonic() + s.duration + SETTLE
@@ -171,7 +174,8 @@ class Sequence:
                 return "a stop was asked"
             known = self._present()
             here = np.asarray(known.state.position)
-            if not known.moving and float(np.max(np.abs(here - goal))) <= ARRIVED:
+            # (arrived: as the adapter says, never the service's guess from what it commanded)
+            if known.source == "adapter" and not known.moving and float(np.max(np.abs(here - goal))) <= ARRIVED:
                 s.reached = [round(float(x), 6) for x in here]
                 return None
             if time.monotonic() > until:

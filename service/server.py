@@ -124,8 +124,8 @@ class Service:
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
-        # picks and places wait for the arm for seconds: never in the way of a move or a stop
-        self._sequences = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-sequence")
+        # picks and places wait for the arm for seconds, detect for sweeps: never in the way of the rest
+        self._sequences = ThreadPoolExecutor(max_workers=4, thread_name_prefix="armd-wait")
         # trajectories are never dropped under congestion (the default drops bursts)
         self._publishers = {
             name: session.declare_publisher(
@@ -209,7 +209,7 @@ class Service:
         )
         if verb == "stop":
             return self._stops
-        if verb in ("pick", "place"):
+        if verb in ("pick", "place", "detect"):  # (they wait: for the arm, for sweeps)
             return self._sequences
         return self._commands if verb in ("move", "gripper") else self._pool
 
@@ -278,7 +278,7 @@ class Service:
             return self._finish(self.handlers.robots(req, deadline), deadline)
         handler = getattr(self.handlers, verb)
         result: dict[str, Any] = handler(arm, req, deadline)
-        if verb in ("move", "stop", "gripper"):  # published: the reply says so, however late
+        if verb in ("move", "stop", "gripper", "pick", "place"):  # published: the reply says so, however late
             return result
         return self._finish(result, deadline)
 

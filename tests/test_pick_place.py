@@ -99,11 +99,44 @@ def test_a_stop_or_an_estop_ends_a_pick_where_it_is(client: ArmClient, sim: Any,
     with Client(router) as other:
         wait_for(lambda: other.state("insomniac")["moving"], timeout=10, what="the pick moving")
         other.stop("insomniac") if how == "stop" else other.estop("insomniac", wait=1.0)
-    runner.join(timeout=30)
-    (r,) = done
-    assert not r["done"] and r["stopped_at"] in ("above", "descend") and "stop" in r["reason"], r
-    assert not any(s["done"] for s in r["steps"] if s["step"] in ("close", "lift"))
-    assert sim.gripper_opening == 1.0  # (opened, never closed)
+        runner.join(timeout=30)
+        (r,) = done
+        assert not r["done"] and r["stopped_at"] in ("above", "descend") and "stop" in r["reason"], r
+        assert not any(s["done"] for s in r["steps"] if s["step"] in ("close", "lift"))
+        assert sim.gripper_opening == 1.0  # (opened, never closed)
+        time.sleep(0.5)  # and the arm stays stopped: no step went on after the stop
+        still = sim.position.copy()
+        time.sleep(0.5)
+        assert np.allclose(sim.position, still) and not other.state("insomniac")["moving"]
+
+
+def test_a_pick_at_real_time_is_answered_when_done_and_a_second_at_once_is_busy(
+    router: str, service: Any, client: ArmClient
+) -> None:
+    """Seconds of motion, past the service's 4 s deadline: the reply comes when the pick is over
+    (the deadline bounds its planning), and a second pick meanwhile is refused as busy."""
+    from armd.service.zconfig import network_config
+
+    arm = robots.load("insomniac")
+    session = zenoh.open(network_config(connect=[router]))
+    sim = SimAdapter(session, arm, time_scale=1.0)
+    try:
+        wait_for(lambda: service._adapter_count(arm) == 1, what="the sim's token")
+        done: list[dict[str, Any]] = []
+        started = time.monotonic()
+        runner = threading.Thread(target=lambda: done.append(client.pick("insomniac", SPOT)))
+        runner.start()
+        time.sleep(0.5)
+        with pytest.raises(ArmdError) as e:
+            client.pick("insomniac", SPOT)
+        assert e.value.code == "busy"
+        runner.join(timeout=60)
+        (r,) = done
+        assert r["done"] and time.monotonic() - started > 4.0, (r, time.monotonic() - started)
+        assert np.linalg.norm(arm.fk(sim.position) - np.array(r["steps"][-1]["target"])) < 1e-3
+    finally:
+        sim.close()
+        session.close()
 
 
 def test_the_simulated_gripper_carries_what_it_closes_on_and_drops_it_where_it_opens(

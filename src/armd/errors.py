@@ -255,6 +255,12 @@ class NoAdapter(ArmdError):
     code = "no_adapter"
 
 
+class Busy(ArmdError):
+    """The arm is doing what this would need it for (a pick or place under way)."""
+
+    code = "busy"
+
+
 class NotReady(ArmdError):
     """What was asked needs readings that have not come yet (a scanner's sweeps, after a start)."""
 
