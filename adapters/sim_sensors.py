@@ -94,7 +94,10 @@ class FloorObject:
         }[self.shape]
 
     def hit(self, origin: FloatArray, direction: FloatArray, ground: float) -> float:
-        """How far along the ray (``direction`` a unit vector) it first meets this object [m], or inf."""
+        """How far along the ray (``direction`` a unit vector) it first meets this object [m], or
+        inf; 0 from inside it."""
+        if self.holds(origin, ground, slack=0.0):
+            return 0.0
         cx, cy = self.position
         ground = ground + self.z
         if self.shape == "sphere":

@@ -178,7 +178,7 @@ def _make_adapter(args: argparse.Namespace, session: Any, arm: Robot, port: obje
             prefix=args.prefix,
             time_scale=args.time_scale,
             lag=args.lag,
-            objects=_sim_objects(args.objects, {arm.name: arm}).get(arm.name, []),
+            objects=_sim_objects(args.objects, all_robots(args.robots_dir)).get(arm.name, []),
         )
     if args.kind in BUS_SERVOS:
         from armd.adapters.dynamixel import DynamixelAdapter

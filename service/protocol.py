@@ -544,7 +544,7 @@ SEQUENCE = Obj(  # pick and place
     required=(("target", "[x, y, z] in metres (the object's centre where it is grasped), or a sensor reading"),),
     top=True,
 )
-MAX_SWEEPS = 8  # sweeps one detect may look at (the service keeps as many)
+MAX_SWEEPS = 4  # sweeps one detect may look at (fresh ones: service/sensor_book.py MAX_AGE)
 DETECT = Obj(
     {
         "sensors": ListOf(Word(), min_items=1, items_are="scanning sensors' names"),

@@ -1,11 +1,14 @@
 """The service's record of the arms' range-sensor readings (``<prefix>/<robot>/sensors/<name>``,
 docs/sensors.md), for ``detect``: each scanner's last sweeps, from live adapters only.
 
-A reading is believed only from a live adapter of its arm (its liveliness token), for a sensor
-of that arm, under that sensor's own key, well formed: a ``range`` that is null or a number in
-the sensor's range, a ``bearing`` inside its sweep, a whole ``sweep`` count. Anything else is
-ignored and counted (``ignored``): nothing published on the key can make the service fail or
-invent an object. A sweep is complete once a reading of a later sweep has come; it is fresh
+A reading is believed only if it names a live adapter of its arm (its liveliness token), for
+a sensor of that arm, under that sensor's own key, well formed (at most ``MAX_BYTES``): a
+``range`` that is null or a number in the sensor's range, a ``bearing`` inside its sweep, a
+``sweep`` count that is the adapter's last or the next. Anything else is ignored and counted
+(``ignored``): nothing published on the key can make the service fail. The adapter's id is no
+secret (its readings carry it): who may put on an arm's sensor keys at all is the router's ACL
+(docs/security.md), as for its state. The first sweep heard from an adapter may have begun
+before: it is not looked at. A sweep is complete once a reading of a later sweep has come; it is fresh
 while its last reading came less than ``MAX_AGE`` ago (by the service's clock: a reading's own
 ``time`` is the adapter's word) and its adapter is still alive. An adapter's readings replace
 another's: one sensor, one adapter reading it at a time.
@@ -13,7 +16,6 @@ another's: one sensor, one adapter reading it at a time.
 
 from __future__ import annotations
 
-import json
 import math
 import threading
 import time
@@ -21,10 +23,14 @@ from collections import OrderedDict
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import orjson
+
 from armd.robots import Robot
 
 KEEP_SWEEPS = 8  # complete sweeps kept per sensor
-MAX_AGE = 10.0  # [s] a sweep whose last reading is older than this is not looked at
+MAX_AGE = 20.0  # [s] a sweep whose last reading is older than this is not looked at (a real-time
+# sweep of 2 rad in 2 degree steps takes 2.2 s: the 4 a detect may ask for are younger)
+MAX_BYTES = 4096  # a reading's payload, at most (one is about 200)
 MAX_PER_SWEEP = 1000  # readings of one sweep (a sweep of 2 rad in 2 degree steps has 58)
 
 
@@ -38,6 +44,7 @@ class SensorBook:
         self._lock = threading.Lock()
         # (robot, sensor) -> (adapter, sweeps: sweep number -> (readings, when the last came))
         self._sweeps: dict[tuple[str, str], tuple[str, OrderedDict[int, tuple[list[dict[str, Any]], float]]]] = {}
+        self._first: dict[tuple[str, str], int] = {}  # (robot, sensor): the sweep its adapter was first heard in
         self.ignored: dict[str, int] = {}
 
     def _ignore(self, why: str) -> None:
@@ -54,8 +61,11 @@ class SensorBook:
             self._ignore("not a sensor of an arm served")
             return
         sensor = arm.sensors[name]
+        if len(payload) > MAX_BYTES:
+            self._ignore("too large")
+            return
         try:
-            msg = json.loads(payload)
+            msg = orjson.loads(payload)
             ok = (
                 isinstance(msg, dict)
                 and msg.get("sensor") == name
@@ -63,7 +73,7 @@ class SensorBook:
                 and (msg.get("range") is None or _number(msg["range"]))
                 and (sensor.mount != "scanner" or (_number(msg.get("bearing")) and _count(msg.get("sweep"))))
             )
-        except (ValueError, UnicodeDecodeError):
+        except Exception:  # (anything a payload can make a parser or a check raise: ignored, counted)
             ok = False
         if not ok:
             self._ignore("malformed")
@@ -87,9 +97,12 @@ class SensorBook:
                 adapter, sweeps = msg["adapter"], OrderedDict()
                 self._sweeps[(robot, name)] = (adapter, sweeps)
             k = int(msg["sweep"])
-            if sweeps and k < next(reversed(sweeps)):
-                self._ignore("a sweep counted back")
+            last = next(reversed(sweeps)) if sweeps else None
+            if last is not None and k not in (last, last + 1):  # (one adapter counts its sweeps one by one)
+                self._ignore("a sweep out of count")
                 return
+            if last is None:
+                self._first[(robot, name)] = k  # (the sweep it was first heard in: maybe begun before)
             readings, _ = sweeps.get(k, ([], now))
             if len(readings) >= MAX_PER_SWEEP:
                 self._ignore("too many readings in one sweep")
@@ -107,8 +120,9 @@ class SensorBook:
         if not adapter or not self.live(robot, adapter):  # (its adapter gone: what it read may be stale)
             return []
         with self._lock:
+            first = self._first.get((robot, sensor))
             complete = list(sweeps.items())[:-1]  # (the newest is still going)
-            fresh = [list(r) for _, (r, at) in complete if now - at <= MAX_AGE]
+            fresh = [list(r) for k, (r, at) in complete if now - at <= MAX_AGE and k != first]
         return fresh[-n:]
 
 

@@ -31,7 +31,8 @@ def test_the_curves_pass_through_the_datasheets_typical_outputs() -> None:
         v = np.array([c.volts(x) for x in d])
         assert np.all(np.diff(v) < 0)  # falling with distance over the range
         assert np.allclose([c.distance(x) for x in v], d, atol=1e-12)  # and back
-        assert c.volts(near / 2) < c.volts(near)  # too close: the output falls again
+        assert c.volts(near / 2) < c.volts(near)  # too close: the output falls again ...
+        assert c.distance(c.volts(near / 2)) > near  # ... and reads as an object farther off
         assert c.volts(math.inf) < v_far and c.distance(c.volts(math.inf)) is None  # nothing in sight
 
 
