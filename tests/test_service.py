@@ -337,8 +337,8 @@ def test_a_gripper_sensor_reading_is_converted_where_the_adapter_says_the_arm_is
     client: ArmClient, router: str, service: object
 ) -> None:
     """No adapter: the reading of the GP2D120 on the gripper is refused (position_unknown), never
-    converted at the neutral pose. With the simulated arm at a pose: converted there (ik, plan
-    and move alike); a seed given: converted at the seed."""
+    converted at the neutral pose. With the simulated arm at a pose: converted there (ik and plan;
+    move takes the same path, service/handlers.py _present); a seed given: converted at the seed."""
     from armd.service.zconfig import network_config
 
     arm = robots.load("insomniac")
