@@ -24,7 +24,7 @@ SERVICE, OPERATOR, GUEST = "armd-service", "operator", "guest"
 ADAPTER_KEYS_IN = ("trajectory", "gripper", "estop", "unlock")  # what an adapter hears
 ADAPTER_KEYS_OUT = ("state", "events", "sensors/*")  # what it says (its range sensors' readings too)
 WATCHED = ("state", "events", "trajectory", "sensors/*")  # what an operator may watch
-READ_ONLY = ("info", "fk", "ik", "plan")  # a guest's verbs, with `robots`
+READ_ONLY = ("info", "fk", "ik", "plan", "detect")  # a guest's verbs, with `robots`
 TLS_ROUTER = '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },'
 TLS_CLIENT = '// link: { tls: { root_ca_certificate: "ca.pem" } },'
 

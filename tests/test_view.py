@@ -31,7 +31,7 @@ from armd.adapters.sim import SimAdapter
 from armd.errors import BadRequest, ViewerError
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
-from armd.tools.view import CAMERA_FOV, OBSTACLE_COLOR, PATH_COLOR, TARGET_COLOR, ArmView, ZenohFeed
+from armd.tools.view import CAMERA_FOV, OBJECT_COLOR, OBSTACLE_COLOR, PATH_COLOR, TARGET_COLOR, ArmView, ZenohFeed
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -207,6 +207,32 @@ def test_obstacles_added_on_the_service_are_drawn_where_they_are(
     wait_for(lambda: view.obstacles == [], 10.0, "the crate to go")
     assert colored(screenshot(view.url, tmp_path / "cleared.png"), OBSTACLE_COLOR).sum() == 0
     assert feed.worlds == 2
+
+
+@needs_chromium
+def test_what_the_range_sensors_see_is_drawn_where_it_is(
+    insomniac_view: tuple[ArmView, ZenohFeed], service: object, adapter_session: zenoh.Session, tmp_path: Path
+) -> None:
+    """A can on the simulated insomniac's floor: its scanners see it, ``detect`` places it, and
+    the viewer draws it there (seed 000's scenario in the viewer); taken away, it is gone."""
+    from armd.adapters.sim_sensors import objects_of
+
+    view, feed = insomniac_view
+    arm = robots.load("insomniac")
+    can = {"name": "can", "shape": "cylinder", "size": [0.03, 0.12], "position": [0.30, -0.15]}
+    sim = SimAdapter(adapter_session, arm, time_scale=10.0, objects=objects_of([can]))
+    try:
+        wait_for(lambda: len(view.objects) == 1, 15.0, "the can to be drawn")
+        cyan = colored(screenshot(view.url, tmp_path / "can.png"), OBJECT_COLOR)
+        ys, xs = np.nonzero(cyan)
+        assert cyan.sum() > 100, f"only {cyan.sum()} pixels of the can"
+        cx, cy = project(view, np.array([0.30, -0.15, 0.05]))
+        assert math.hypot(xs.mean() + 0.5 - cx, ys.mean() + 0.5 - cy) < 15.0, "the can is not drawn where it is"
+        sim.sensors.set_objects([])
+        wait_for(lambda: view.objects == [], 15.0, "the can to go")
+        assert feed.seen >= 2
+    finally:
+        sim.close()
 
 
 @needs_chromium

@@ -51,6 +51,7 @@ CAMERA_DIRECTION = (0.55, -1.0, 0.5)  # from the scene centre towards the camera
 PATH_COLOR = 0xFF00FF  # the tool path: flat (unlit) magenta, distinct from every arm's colours
 TARGET_COLOR = 0x00C853  # the target: flat green
 OBSTACLE_COLOR = 0xFF6D00  # the world's obstacles: flat orange
+OBJECT_COLOR = 0x00B8D4  # what the range sensors see (detect): flat cyan
 WORLD_POLL = 1.0  # [s] how often the feed asks the service's info for the arm's world
 PATH_RADIUS = 0.003  # [m]
 TARGET_RADIUS = 0.015  # [m]: shows round the tool of an arm that reached it
@@ -355,6 +356,9 @@ class ArmView:
         self._pin.display(self.robot.neutral)
         world = self.robot.collision
         self.obstacles: list[dict[str, Any]] = []
+        self.objects: list[dict[str, Any]] = []  # what the range sensors see, drawn
+        world = self.robot.collision
+        self._floor_z = float(world.ground) if world is not None and world.ground is not None else 0.0
         self._draw_world([] if world is None else world.describe()["obstacles"])  # type: ignore[arg-type]
 
     def show_world(self, obstacles: Sequence[dict[str, Any]]) -> None:
@@ -389,6 +393,28 @@ class ArmView:
             node.set_object(geometry, material)
             node.set_transform(placed @ turn)
         self.obstacles = [dict(o) for o in obstacles]
+
+    def show_objects(self, objects: Sequence[dict[str, Any]]) -> None:
+        """Draw the objects the arm's range sensors see (``detect``'s: ``position``, ``width``),
+        each an upright cylinder as wide as it was seen, from the floor to the beams' height, in
+        place of those drawn."""
+        import meshcat.geometry as g
+        import pinocchio as pin
+
+        with self._draw_lock:
+            self._vis["armd/objects"].delete()
+            material = g.MeshBasicMaterial(color=OBJECT_COLOR)
+            floor = self._floor_z
+            for k, o in enumerate(objects):
+                x, y, z = (float(v) for v in o["position"])
+                height = max(z - floor, 0.01)
+                node = self._vis[f"armd/objects/{k}"]
+                node.set_object(g.Cylinder(height, max(float(o["width"]) / 2, 0.005)), material)
+                placed = np.eye(4)
+                placed[:3, :3] = pin.rpy.rpyToMatrix(math.pi / 2, 0.0, 0.0)  # (meshcat's cylinders stand on y)
+                placed[:3, 3] = [x, y, floor + height / 2]
+                node.set_transform(placed)
+            self.objects = [dict(o) for o in objects]
 
     def _framing(self) -> tuple[FloatArray, FloatArray, float]:
         """The scene centre and a camera position [m] in ``base``, and the arm's reach [m].
@@ -582,8 +608,9 @@ def _target_of(msg: dict[str, Any]) -> Any:
 
 class ZenohFeed:
     """Shows ``view`` what the network says about its arm: every state on
-    ``<prefix>/<robot>/state``, every trajectory on ``<prefix>/<robot>/trajectory``, and the
-    arm's world as the service's ``info`` gives it (polled every WORLD_POLL seconds)."""
+    ``<prefix>/<robot>/state``, every trajectory on ``<prefix>/<robot>/trajectory``, the arm's
+    world as the service's ``info`` gives it, and (an arm with scanning range sensors) the
+    objects they see as the service's ``detect`` gives them (both polled every WORLD_POLL s)."""
 
     def __init__(self, view: ArmView, session: zenoh.Session, *, prefix: str = "armd") -> None:
         self.view = view
@@ -597,6 +624,7 @@ class ZenohFeed:
         ]
         self.session = session
         self.worlds = 0  # changes of the arm's world drawn
+        self.seen = 0  # changes of what its range sensors see, drawn
         self._closed = threading.Event()
         self._poller = threading.Thread(target=self._poll_world, name=f"world-{view.robot.name}", daemon=True)
         self._poller.start()
@@ -618,6 +646,27 @@ class ZenohFeed:
                     log.info("%s: world drawn (%d obstacles)", self.base, len(obstacles))
             except Exception:  # (the service gone, the session closing, a bad reply: try again later)
                 log.debug("world poll failed", exc_info=True)
+            if any(s.mount == "scanner" for s in self.view.robot.sensors.values()):
+                self._poll_objects()
+
+    def _poll_objects(self) -> None:
+        """What the arm's scanners see (``detect``, one sweep), redrawn on a change (rounded to
+        a centimetre: the noise of one sweep to the next is not a change)."""
+        try:
+            replies = list(self.session.get(f"{self.base}/detect", payload=b'{"sweeps": 1}', timeout=WORLD_POLL))
+            ok = [r.ok for r in replies if r.ok is not None]
+            if not ok:
+                return
+            objects = json.loads(ok[0].payload.to_bytes()).get("objects", [])
+
+            def rounded(objs: list[dict[str, Any]]) -> list[tuple[float, ...]]:
+                return [tuple(round(float(v), 2) for v in (*o["position"], o["width"])) for o in objs]
+
+            if rounded(objects) != rounded(self.view.objects):
+                self.view.show_objects(objects)
+                self.seen += 1
+        except Exception:  # (no service, no adapter yet, a bad reply: try again later)
+            log.debug("objects poll failed", exc_info=True)
 
     def _on_state(self, sample: zenoh.Sample) -> None:
         self.states += 1
@@ -667,4 +716,4 @@ class ZenohFeed:
         self.close()
 
 
-__all__ = ["DEFAULT_PORT", "HOST", "OBSTACLE_COLOR", "ArmView", "ViewerError", "ZenohFeed"]
+__all__ = ["DEFAULT_PORT", "HOST", "OBJECT_COLOR", "OBSTACLE_COLOR", "ArmView", "ViewerError", "ZenohFeed"]
