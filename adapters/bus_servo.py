@@ -262,7 +262,7 @@ class BusServoAdapter(Adapter):
         self._v_sent, self._v_sent_at = np.zeros(robot.nq), 0.0  # [rad/s] the speeds last sent, and when
         self._lateness = 0.0  # [s] the longest gap between cycles lately (decaying)
         # [counts/s] each servo's fastest: its joints' velocity limits (a linkage: the sum), rounded down
-        self._top = np.floor(np.abs(amap.M) @ self._vmax * self._per_rad)
+        self._top = np.floor(amap.rate_bounds(self._vmax, self._amax)[0] * self._per_rad)
         self._direction = np.array([s.direction for s in self.servos])
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=0.1)
         self.position_source = "measured"
@@ -287,9 +287,9 @@ class BusServoAdapter(Adapter):
                 "the arm inside them by hand and start again (a servo that reads so where the arm is inside "
                 "needs calibrating: armd calibrate)"
             )
-        M = self.robot.actuators.M
-        for k, s in enumerate(self.servos):  # (a linkage's servo: the sum of its joints')
-            self.bus.set_limits(s.id, float(np.abs(M[k]) @ self._amax) * s.counts_per_rad)
+        accel = self.robot.actuators.rate_bounds(self.robot.limits.velocity, self._amax)[1]
+        for k, s in enumerate(self.servos):  # (a servo moved by several joints: its bound over them all)
+            self.bus.set_limits(s.id, float(accel[k]) * s.counts_per_rad)
         here = {i: r.position for i, r in self._reading.items() if i in self.ids}
         self.bus.write_goals(here, self._speeds(np.zeros(self.robot.nq)))  # (enabled, a servo drives to its goal)
         for i in self.ids:
@@ -320,23 +320,25 @@ class BusServoAdapter(Adapter):
         speeds = np.array([got[i].speed for i in wanted], dtype=float)
         amap = self.robot.actuators
         self._position = amap.joints_from_commands(counts, tol=np.inf)
-        # [rad/s] of each actuator, then the joints (least squares: a = M q + b)
+        # [rad/s] of each actuator, then the joints (least squares: rates = J(q) v)
         rates = self._direction * speeds / self._per_rad
-        self._velocity = np.linalg.lstsq(amap.M, rates, rcond=None)[0]
+        self._velocity = np.linalg.lstsq(amap.jacobian(self._position), rates, rcond=None)[0]
         alarms = [(s, got[s.id].alarms) for s in self.servos if got[s.id].alarms]
         self._alarm = "; ".join(f"servo {s.id} ({s.name}): {', '.join(a)}" for s, a in alarms) if alarms else None
         self._cycles += 1
         return True
 
-    def _speeds(self, v: FloatArray) -> dict[int, int]:
-        """Each servo's speed [counts/s] for joint velocities ``v`` [rad/s], within its joint's
-        velocity limit (rounded down), and at least 1 (0 is the servo's top speed)."""
-        rate = np.abs(self.robot.actuators.M @ v) * self._per_rad
+    def _speeds(self, v: FloatArray, q: FloatArray | None = None) -> dict[int, int]:
+        """Each servo's speed [counts/s] for joint velocities ``v`` [rad/s] at position ``q``
+        (else anywhere: the bound over the joints' range), within its joint's velocity limit
+        (rounded down), and at least 1 (0 is the servo's top speed)."""
+        amap = self.robot.actuators
+        rate = (np.abs(amap.jacobian(q) @ v) if q is not None else amap.slopes @ np.abs(v)) * self._per_rad
         return {i: int(c) for i, c in zip(self.ids, np.clip(np.floor(rate), 1, self._top), strict=True)}
 
     def _send(self, q: FloatArray, v: FloatArray) -> None:
         counts = self.robot.actuators.commands(q)
-        speeds = self._speeds(v)
+        speeds = self._speeds(v, q)
         with self._io:
             self.bus.write_goals({i: int(c) for i, c in zip(self.ids, counts, strict=True)}, speeds)
 

@@ -111,9 +111,16 @@ def calibrate(
     against the arm's limits (else :class:`RobotFileError` naming the servo). ``bus`` is closed
     at the end, whatever happens."""
     try:
+        amap = robot.actuators
+        if not amap.linear:
+            behind = ", ".join(amap.names[k] for k in amap.linkages)
+            raise BadRequest(
+                f"calibrating by hand takes servos that turn with one joint each; {behind} turns through a "
+                "linkage: write its zero and direction in calibration.toml",
+                field="robot",
+            )
         arm = HandGuided(robot, bus, lambda: ask(LIMP))
         servos = arm.servos
-        amap = robot.actuators
         say(f"{robot.name}: {len(arm.ids)} servos answer on {bus.port}; their torque is off")
         ask("Put the arm at its reference pose, every joint at 0 rad (the arm's README shows it), then press Enter")
         ref = arm.still()

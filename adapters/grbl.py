@@ -446,10 +446,10 @@ class GrblAdapter(SerialAdapter):
         lim, amap = self.robot.limits, self.robot.actuators
         want: dict[int, float] = {10: 1, 13: 0}
         accels = []
+        speed, accel = amap.rate_bounds(lim.velocity, lim.acceleration)
         for j, i in enumerate(self._index):
-            row = np.abs(amap.M[j])
-            vmax = math.degrees(float(row @ lim.velocity))  # [deg/s] the actuator angle's rate bound
-            amax = math.degrees(float(row @ lim.acceleration))  # [deg/s^2]
+            vmax = math.degrees(float(speed[j]))  # [deg/s] the actuator angle's rate bound
+            amax = math.degrees(float(accel[j]))  # [deg/s^2]
             accels.append(amax)
             want[100 + i] = float(self._spd[j])
             want[110 + i] = vmax * 60.0

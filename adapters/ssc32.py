@@ -158,10 +158,10 @@ class SSC32Adapter(SerialAdapter):
         )
         lim = robot.limits
         self._vmax, self._amax = lim.velocity, lim.acceleration
-        amap = robot.actuators  # [rad] per joint, half a microsecond of the servo that moves it most finely
+        amap = robot.actuators  # [rad] per joint, half a microsecond of a servo that moves it (the most of any)
         self._half_pulse = np.array(
             [
-                0.5 * max(a.resolution / abs(m) for a, m in zip(amap.actuators, amap.M[:, j], strict=True) if m)
+                0.5 * max(a.resolution / m for a, m in zip(amap.actuators, amap.gentlest[:, j], strict=True) if m)
                 for j in range(robot.nq)
             ]
         )
@@ -416,7 +416,7 @@ class SSC32Adapter(SerialAdapter):
             p0 = self._at(t0)[0]
             here = amap.command_values(p0)  # [us] each servo where its command finds it
             want = amap.command_values(x)  # [us] where its speed leads in the span
-            rate = np.abs(amap.command_values(v) - amap.command_values(np.zeros_like(v)))  # [us/s] as aimed
+            rate = np.abs(amap.command_rates(x, v))  # [us/s] as aimed
             speeds = np.clip(np.rint(rate), 1, SPEED_MAX)  # (S0 would be no limit: a jump)
             pulses = amap.commands(x)
             if not final:  # a target rounded away from the servo: not reached before the span is over

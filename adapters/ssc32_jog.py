@@ -115,7 +115,13 @@ def jog(
 
 
 def _row(robot: Robot, k: int) -> str:
-    """A linkage row as a sum of joints: ``major + minor``."""
+    """A linkage row as a sum of joints (``major + minor``), or a four-bar's."""
+    link = robot.actuators.linkages.get(k)
+    if link is not None:
+        return (
+            f"its horn from straight behind, turning {robot.joint_names[link.driven]} through a four-bar "
+            f"with {robot.joint_names[link.input]}"
+        )
     terms = [
         f"{'-' if c < 0 else '+'} {'' if abs(c) == 1 else f'{abs(c):g} '}{robot.joint_names[j]}"
         for j, c in enumerate(robot.actuators.M[k])

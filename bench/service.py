@@ -47,12 +47,26 @@ from armd.service.zconfig import free_port  # noqa: E402
 
 
 def targets(n: int, seed: int = 0) -> list[list[float]]:
+    """Tool points of ``n`` random configurations within every limit and clear of collisions
+    (with the arm itself and its floor): targets the IK answers ``ok`` (a point only a
+    colliding configuration reaches is answered ``collision``)."""
     from armd import robots
 
     arm = robots.load("insomniac")
     rng = np.random.default_rng(seed)
-    qs = rng.uniform(arm.limits.lower, arm.limits.upper, size=(n, arm.nq))
-    return [arm.fk(q).tolist() for q in qs]
+    world = arm.collision
+    out: list[list[float]] = []
+    while len(out) < n:
+        q = rng.uniform(arm.limits.lower, arm.limits.upper)
+        if not arm.limits.contains(q):
+            continue
+        p = arm.fk(q)
+        if world is not None and (
+            world.first_contact(q) is not None or (world.ground is not None and p[2] < world.ground)
+        ):
+            continue
+        out.append(p.tolist())
+    return out
 
 
 def echo_server(endpoint: str, embedded: bool, ready: mp.Event, stop: mp.Event) -> None:  # type: ignore[valid-type]

@@ -89,7 +89,7 @@ def actuator_commands(robot: Robot, times: FloatArray, position: FloatArray) -> 
         for j, act in enumerate(amap.actuators):
             if act.name == e.name:
                 lo, hi = act.angle_range
-                out = (a[:, j] < lo - 1e-9) | (a[:, j] > hi + 1e-9)
+                out = ~((a[:, j] >= lo - 1e-9) & (a[:, j] <= hi + 1e-9))  # (NaN: a linkage that cannot reach)
                 k = int(np.argmax(out)) if out.any() else 0
         raise _at(e, times[k]) from None
 

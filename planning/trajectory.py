@@ -101,8 +101,6 @@ class _Gate:
     """One arm's limits as the compiled gate takes them (packed: see :func:`all_clear`)."""
 
     C: FloatArray  # coupled limits' coefficients (k, n)
-    M: FloatArray  # the actuator map's M (m, n): angles as ActuatorMap.angles computes them
-    b: FloatArray
     joints: FloatArray
     couplings: FloatArray
     actuators: FloatArray
@@ -121,8 +119,6 @@ class _Gate:
         lo, hi, gain, bias, cmd_lo, cmd_hi, angle_tol = amap.ranges
         gate = cls(
             np.array([c.coefficients for c in co]).reshape(len(co), robot.nq),
-            amap.M,
-            amap.b,
             np.array([lim.lower, lim.upper, lim.velocity, lim.acceleration, lim.jerk]),
             np.array([[c.lower for c in co], [c.upper for c in co]], dtype=float).reshape(2, len(co)),
             np.array([lo, hi, gain, bias, cmd_lo, cmd_hi]),
@@ -162,14 +158,14 @@ def build(
     gate = _Gate.of(robot)
     # noise within POSITION_TOL of a box limit is put exactly on it (anything more raises)
     clipped = lim.clip(position)
-    commands = np.empty((len(times), len(gate.b)), dtype=np.int64)
+    commands = np.empty((len(times), len(gate.names)), dtype=np.int64)
     if not all_clear(
         position,
         velocity,
         acceleration,
         jerk,
         position @ gate.C.T,
-        clipped @ gate.M.T + gate.b,
+        robot.actuators.angles(clipped),  # (a linkage's: its own function; NaN where it cannot reach)
         gate.joints,
         gate.couplings,
         gate.actuators,

@@ -1,10 +1,11 @@
 """Actuator maps: joint vector -> actuator angles -> servo pulses or stepper micro-steps, and back.
 
-Every actuator angle is a linear function of the joint vector, ``a = M q + b`` (one row per
-actuator). A plain servo has a single 1 in its row; a mirrored pair (the SG5-UT shoulder) is
-two rows on the same joint whose pulses run in opposite directions; a servo behind a linkage
-(the desk4 minor-arm servo) has the row ``(0, 1, 1)``. Pulses and steps are functions of
-``a``, never of ``q`` directly. A command outside an actuator's range is an error
+An actuator angle is a linear function of the joint vector, ``a = M q + b`` (one row per
+actuator), or the angle of a servo behind a four-bar linkage (:mod:`robots.linkages`: the desk4
+minor-arm servo). A plain servo has a single 1 in its row; a mirrored pair (the SG5-UT shoulder)
+is two rows on the same joint whose pulses run in opposite directions; an ideal parallelogram
+would be the row ``(0, 1, 1)``. Pulses and steps are functions of ``a``, never of ``q``
+directly. A command outside an actuator's range is an error
 (:class:`~robots.errors.ActuatorRangeError`), never silently clamped.
 """
 
@@ -18,6 +19,7 @@ from numpy.typing import NDArray
 
 from armd.errors import ActuatorMapError, ActuatorRangeError, BadRequest
 
+from .linkages import FourBar
 from .types import FloatArray
 
 IntArray = NDArray[np.int64]
@@ -178,17 +180,41 @@ class Gripper:
 
 
 class ActuatorMap:
-    """``a = M q + b`` and each actuator's command conversion, vectorised over samples.
+    """``a = M q + b``, or a linkage's angle, and each actuator's command conversion,
+    vectorised over samples.
 
-    ``M`` has shape (k, n): k actuators, n joints. It must have full column rank, so that
-    :meth:`joints_from_commands` recovers ``q`` from what the hardware reports.
+    ``M`` has shape (k, n): k actuators, n joints. ``linkages`` maps an actuator's row to the
+    :class:`~robots.linkages.FourBar` that gives its angle; that row of ``M`` holds the
+    linkage's slope at mid-range (which joints move the servo, and roughly how much: code that
+    needs exact values takes :meth:`angles` and :meth:`jacobian`; :attr:`slopes` bounds them).
+    The linear rows must determine every joint that no linkage drives (full column rank there),
+    and not involve a driven joint, so that :meth:`joints_from_commands` recovers ``q`` from what
+    the hardware reports: the linear rows first, then each linkage's inverse.
     """
 
-    def __init__(self, actuators: tuple[Actuator, ...], M: FloatArray, b: FloatArray) -> None:
+    def __init__(
+        self,
+        actuators: tuple[Actuator, ...],
+        M: FloatArray,
+        b: FloatArray,
+        linkages: dict[int, FourBar] | None = None,
+    ) -> None:
         self.actuators = actuators
         self.M = np.asarray(M, dtype=float)
         self.b = np.asarray(b, dtype=float)
-        self._pinv = np.linalg.pinv(self.M)
+        self.linkages = dict(linkages or {})
+        n = self.M.shape[1]
+        self._lin = [k for k in range(len(actuators)) if k not in self.linkages]
+        driven = {link.driven for link in self.linkages.values()}
+        self._free = [j for j in range(n) if j not in driven]
+        if len(driven) < len(self.linkages) or np.any(self.M[np.ix_(self._lin, sorted(driven))]):
+            raise ValueError("each linkage must drive its own joint, which no linear row may involve")
+        self._pinv = np.linalg.pinv(self.M[np.ix_(self._lin, self._free)])
+        # |da/dq| over the joints' range, at its largest and smallest: M's for the linear rows
+        self.slopes = np.abs(self.M)
+        self.gentlest = np.abs(self.M)
+        for k, link in self.linkages.items():
+            self.slopes[k], self.gentlest[k] = link.steepest, link.gentlest
         self._angle_lo = np.array([a.angle_range[0] for a in actuators])
         self._angle_hi = np.array([a.angle_range[1] for a in actuators])
         self.names = tuple(a.name for a in actuators)
@@ -198,8 +224,17 @@ class ActuatorMap:
         self._cmd_lo = np.array([a.command_range[0] for a in actuators], dtype=float)
         self._cmd_hi = np.array([a.command_range[1] for a in actuators], dtype=float)
 
+    def with_actuators(self, actuators: tuple[Actuator, ...]) -> ActuatorMap:
+        """The same map (rows, linkages) over other actuators' conversions (a calibration)."""
+        return ActuatorMap(actuators, self.M, self.b, self.linkages)
+
     def __len__(self) -> int:
         return len(self.actuators)
+
+    @property
+    def linear(self) -> bool:
+        """Whether every actuator angle is ``M q + b`` exactly (no linkage)."""
+        return not self.linkages
 
     @property
     def ranges(self) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float]:
@@ -209,8 +244,36 @@ class ActuatorMap:
         return (self._angle_lo, self._angle_hi, self._gain, self._bias, self._cmd_lo, self._cmd_hi, _TOL)
 
     def angles(self, q: FloatArray) -> FloatArray:
-        """Actuator angles [rad] of joint vector(s) ``q``: shape (n,) -> (k,), (m, n) -> (m, k)."""
-        return np.asarray(q, dtype=float) @ self.M.T + self.b
+        """Actuator angles [rad] of joint vector(s) ``q``: shape (n,) -> (k,), (m, n) -> (m, k).
+        A linkage that cannot be assembled at ``q`` gives NaN."""
+        q = np.asarray(q, dtype=float)
+        a = q @ self.M.T + self.b
+        for k, link in self.linkages.items():
+            a[..., k] = link.angle(q)
+        return a
+
+    def jacobian(self, q: FloatArray) -> FloatArray:
+        """``da/dq`` at joint vector(s) ``q``: (n,) -> (k, n), (m, n) -> (m, k, n)."""
+        q = np.asarray(q, dtype=float)
+        J = np.broadcast_to(self.M, (*q.shape[:-1], *self.M.shape)).copy()
+        for k, link in self.linkages.items():
+            J[..., k, :] = link.gradient(q)
+        return J
+
+    def command_rates(self, q: FloatArray, v: FloatArray) -> FloatArray:
+        """Each actuator's command rate (pulses [us/s], steps/s) at joint position(s) ``q`` moving
+        at ``v`` [rad/s]: ``gain * J(q) v``."""
+        return np.einsum("...kn,...n->...k", self.jacobian(q), np.asarray(v, dtype=float)) * self._gain
+
+    def rate_bounds(self, velocity: FloatArray, acceleration: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Each actuator angle's speed [rad/s] and acceleration [rad/s^2] bounds, anywhere in the
+        joints' range, for joints within ``velocity`` and ``acceleration``: ``|da/dq| v`` and
+        ``|da/dq| a``, plus for a linkage its curvature's share ``v' |d2a/dq2| v``."""
+        speed = self.slopes @ velocity
+        accel = self.slopes @ acceleration
+        for k, link in self.linkages.items():
+            accel[k] += velocity @ link.curvature @ velocity
+        return speed, accel
 
     def command_values(self, q: FloatArray) -> FloatArray:
         """Commands (pulse [us] or micro-steps) for joint vector(s) ``q``, unrounded and unchecked:
@@ -223,9 +286,14 @@ class ActuatorMap:
         Raises :class:`ActuatorRangeError` naming the first actuator that would leave its
         range; nothing is clamped.
         """
-        a = self.angles(q)
-        if not np.all(np.isfinite(a)):
+        q = np.asarray(q, dtype=float)
+        if not np.all(np.isfinite(q)):
             raise BadRequest("joint positions must be finite to map them to actuator commands", field="q")
+        a = self.angles(q)
+        if not np.all(np.isfinite(a)):  # (a linkage that cannot be assembled there)
+            row, j = np.argwhere(~np.isfinite(np.atleast_2d(a)))[0]
+            act = self.actuators[j]
+            raise ActuatorRangeError(act.name, math.nan, act.angle_range, "rad")
         self.check_angles(a)
         cmds = np.rint(a * self._gain + self._bias)
         bad = (cmds < self._cmd_lo) | (cmds > self._cmd_hi)
@@ -259,21 +327,35 @@ class ActuatorMap:
     def joints_from_commands(self, commands: FloatArray | IntArray, tol: float | None = None) -> FloatArray:
         """Joint vector(s) [rad] that the given commands put the arm in (hardware read-back).
 
-        Redundant actuators (a mirrored pair) are reconciled by least squares; if they
-        disagree by more than ``tol`` [rad] (default: two command quanta) this raises
-        :class:`ActuatorMapError`.
+        The linear rows give the joints no linkage drives, redundant actuators (a mirrored pair)
+        reconciled by least squares: if they disagree by more than ``tol`` [rad] (default: two
+        command quanta) this raises :class:`ActuatorMapError`. Each linkage's inverse then gives
+        its driven joint; a reading the linkage cannot take raises :class:`ActuatorMapError`
+        whatever ``tol``.
         """
         a = self.angles_from_commands(commands)
-        q = (a - self.b) @ self._pinv.T
-        residual = np.abs(q @ self.M.T + self.b - a)
+        lin, free = self._lin, self._free
+        q = np.zeros((*a.shape[:-1], self.M.shape[1]))
+        q[..., free] = (a[..., lin] - self.b[lin]) @ self._pinv.T
+        residual = np.abs(q[..., free] @ self.M[np.ix_(lin, free)].T + self.b[lin] - a[..., lin])
         limit = tol if tol is not None else 2.0 * max(act.resolution for act in self.actuators)
         if np.any(residual > limit):
-            j = int(np.argmax(np.max(np.atleast_2d(residual), axis=0)))
+            j = lin[int(np.argmax(np.max(np.atleast_2d(residual), axis=0)))]
             raise ActuatorMapError(
                 f"actuator readings disagree: {self.actuators[j].name} is {float(np.max(residual)):.3g} rad "
                 "from what the other actuators imply",
                 actuator=self.actuators[j].name,
             )
+        for k, link in self.linkages.items():
+            q[..., link.driven] = link.joint(a[..., k], q)
+            bad = ~np.isfinite(q[..., link.driven])
+            if np.any(bad):
+                value = float(np.atleast_1d(a[..., k])[np.argmax(np.atleast_1d(bad))])
+                raise ActuatorMapError(
+                    f"actuator {self.actuators[k].name!r} reads {value:.4g} rad, an angle its linkage cannot "
+                    "take with the other joints where they are",
+                    actuator=self.actuators[k].name,
+                )
         return q
 
     def quantise(self, q: FloatArray) -> FloatArray:

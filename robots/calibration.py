@@ -32,7 +32,7 @@ import tomllib
 
 from armd.errors import RobotFileError
 
-from .actuators import ActuatorMap, BusServo, Gripper, Servo
+from .actuators import BusServo, Gripper, Servo
 from .robot import Robot
 
 FILE = "calibration.toml"
@@ -68,7 +68,7 @@ def apply_tables(robot: Robot, data: dict[str, Any], source: str) -> Robot:
             raise RobotFileError(source, name, f"is not a servo of {robot.name} ({', '.join(ours) or 'none'})")
         k, servo = servos[name]
         acts[k] = _servo(servo, table, source) if isinstance(servo, Servo) else _bus_servo(servo, table, source)  # type: ignore[arg-type]
-    out.actuators = ActuatorMap(tuple(acts), robot.actuators.M, robot.actuators.b)
+    out.actuators = robot.actuators.with_actuators(tuple(acts))
     return out
 
 

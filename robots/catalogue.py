@@ -14,6 +14,7 @@ import functools
 import logging
 import math
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,8 @@ from .chain import recognise, roll_joint
 from .collision import GROUND, CollisionModel, Obstacle
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
+from .linkages import FourBar
+from .linkages import region as linkage_region
 from .robot import Robot
 from .sensors import RangeSensor
 from .types import FloatArray
@@ -587,6 +590,7 @@ class _Builder:
         actuators: list[Actuator] = []
         rows = np.zeros((len(tables), n))
         offsets = np.zeros(len(tables))
+        linkages: dict[int, FourBar] = {}
         channels: dict[int, str] = {}
         axes: dict[str, str] = {}
         ids: dict[int, str] = {}
@@ -594,16 +598,24 @@ class _Builder:
             name = t.string("name")
             if name in [a.name for a in actuators]:
                 raise t.error("name", f"{name!r} is used twice")
-            coeffs = t.table("joints")
-            for key in coeffs.data:
-                if key not in index:
-                    raise coeffs.error(key, f"is not a joint of this arm; joints: {', '.join(index)}")
-                rows[k, index[key]] = coeffs.number(key)
-            coeffs.finish()
-            if not np.any(rows[k]):
-                raise t.error("joints", "must give at least one joint a non-zero coefficient (a = M q + b)")
-            offsets[k] = t.number("offset", 0.0, angle=True)
-            reach = _row_range(rows[k], offsets[k], limits)
+            if t.has("linkage"):
+                if t.has("joints") or t.has("offset"):
+                    raise t.error("linkage", "gives the servo's angle: joints and offset (a = M q + b) go with it not")
+                checked = _linkage(t.table("linkage"), index, limits)
+                linkages[k] = checked.linkage
+                rows[k] = checked.linkage.gradient(checked.middle)
+                reach = checked.angle_range
+            else:
+                coeffs = t.table("joints")
+                for key in coeffs.data:
+                    if key not in index:
+                        raise coeffs.error(key, f"is not a joint of this arm; joints: {', '.join(index)}")
+                    rows[k, index[key]] = coeffs.number(key)
+                coeffs.finish()
+                if not np.any(rows[k]):
+                    raise t.error("joints", "must give at least one joint a non-zero coefficient (a = M q + b)")
+                offsets[k] = t.number("offset", 0.0, angle=True)
+                reach = _row_range(rows[k], offsets[k], limits)
             kind = t.string("type")
             if t.has("angle_range"):
                 angle_range = tuple(t.vector("angle_range", 2, angle=True))
@@ -699,6 +711,19 @@ class _Builder:
                 "actuators",
                 f"do not determine every joint: the rows of M must have rank {n} (each joint driven by some actuator)",
             )
+        driven = sorted({link.driven for link in linkages.values()})
+        linear = [k for k in range(len(tables)) if k not in linkages]
+        free = [j for j in range(n) if j not in driven]
+        if (
+            len(driven) < len(linkages)
+            or np.any(rows[np.ix_(linear, driven)])
+            or np.linalg.matrix_rank(rows[np.ix_(linear, free)]) < len(free)
+        ):
+            raise top.error(
+                "actuators",
+                "with a linkage: each linkage drives a joint of its own, which no other actuator's joints "
+                "name, and the other actuators determine every other joint (the linkage's input among them)",
+            )
         gripper = None
         if top.has("gripper"):
             gt = top.table("gripper")
@@ -712,7 +737,7 @@ class _Builder:
                     raise gt.error("channel", f"channel {channel} is already used by {channels[channel]!r}")
             gripper = Gripper(channel=channel, closed=gt.number("closed"), open=gt.number("open"))
             gt.finish()
-        return ActuatorMap(tuple(actuators), rows, offsets), gripper
+        return ActuatorMap(tuple(actuators), rows, offsets, linkages), gripper
 
     def _sensors(self, top: _Table, frames: set[str]) -> dict[str, RangeSensor]:
         out: dict[str, RangeSensor] = {}
@@ -841,6 +866,49 @@ def _continuous_as_revolute(urdf: str, arm: str) -> str:
         ", ".join(changed),
     )
     return ET.tostring(root, encoding="unicode")
+
+
+@dataclass(frozen=True)
+class _Linkage:
+    linkage: FourBar
+    angle_range: tuple[float, float]
+    middle: np.ndarray  # a joint vector in the middle of the linkage's range
+
+
+def _linkage(t: _Table, index: dict[str, int], limits: JointLimits) -> _Linkage:
+    """``[actuators.linkage]``: a four-bar (robots/linkages.py), proven over the joint limits."""
+    kind = t.string("type", "four_bar")
+    if kind != "four_bar":
+        raise t.error("type", f"must be 'four_bar', got {kind!r}")
+
+    def joint(key: str) -> int:
+        name = t.string(key)
+        if name not in index:
+            raise t.error(key, f"{name!r} is not a joint of this arm; joints: {', '.join(index)}")
+        return index[name]
+
+    link = FourBar(
+        input=joint("input"),
+        driven=joint("driven"),
+        frame=t.number("frame", positive=True),
+        lever=t.number("lever", positive=True),
+        rod=t.number("rod", positive=True),
+        horn=t.number("horn", positive=True),
+        bend=t.number("bend", 0.0, angle=True),
+        assembly=t.integer("assembly", 1),
+    )
+    t.finish()
+    if link.input == link.driven:
+        raise t.error("driven", "must be another joint than input")
+    if link.assembly not in (1, -1):
+        raise t.error("assembly", f"must be 1 or -1, got {link.assembly}")
+    coupled = [(c.coefficients, c.lower, c.upper) for c in limits.coupled]
+    pts = linkage_region(limits.lower, limits.upper, coupled, (link.input, link.driven))
+    try:
+        checked = link.check(pts)
+    except ValueError as e:
+        raise t.error(None, str(e)) from None
+    return _Linkage(checked.linkage, checked.angle_range, np.mean(pts, axis=0))
 
 
 def _row_range(row: np.ndarray, offset: float, limits: JointLimits) -> tuple[float, float]:

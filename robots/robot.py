@@ -325,6 +325,19 @@ class Robot:
         held = ", the tool held level by a linkage" if g.level else ""
         return f"closed form: {self.family_note} ({g.source}{held})"
 
+    def _linkage(self, k: int) -> dict[str, object]:
+        """Actuator ``k``'s linkage for :meth:`describe` (its row is then the slope at mid-range)."""
+        link = self.actuators.linkages.get(k)
+        if link is None:
+            return {}
+        return {
+            "linkage": {
+                **link.describe(),
+                "input": self.joint_names[link.input],
+                "driven": self.joint_names[link.driven],
+            }
+        }
+
     def describe(self) -> dict[str, object]:
         """A JSON-ready summary: joints, limits, actuators, sensors (the protocol's ``info``)."""
         lim = self.limits
@@ -354,6 +367,7 @@ class Robot:
                     "unit": a.unit,
                     "row": self.actuators.M[j].tolist(),
                     "offset": float(self.actuators.b[j]),
+                    **self._linkage(j),
                 }
                 for j, a in enumerate(self.actuators.actuators)
             ],

@@ -335,8 +335,8 @@ def jog_script(script: dict[str, list[str]], seen: list[str]) -> Any:
 
 
 def test_a_linkage_servo_is_jogged_alone_and_asked_of_its_own_angle(tmp_path: Path) -> None:
-    """desk4's minor servo turns with major + minor: jogged on its own (major's jog leaves it
-    be), its direction asked of its own angle."""
+    """desk4's minor servo turns with major and minor through its four-bar: jogged on its own
+    (major's jog leaves it be), its direction asked of its own angle, the horn's."""
     out = tmp_path / "desk4.toml"
     seen: list[str] = []
     script = {"major": ["+", "+", "", "y"], "servo": ["-", "", "n"]}
@@ -353,7 +353,8 @@ def test_a_linkage_servo_is_jogged_alone_and_asked_of_its_own_angle(tmp_path: Pa
         "major": {"centre_pulse": 1520, "direction": 1},
         "minor": {"centre_pulse": 1490, "direction": -1},
     }
-    assert any(p.startswith("Jog servo minor (its own angle: major + minor) to 0.0000 rad") for p in seen), seen
+    own = "Jog servo minor (its own angle: its horn from straight behind, turning minor through a four-bar with major)"
+    assert any(p.startswith(f"{own} to 0.0000 rad") for p in seen), seen
     assert abs(pulses[1] - 1520) < 1 and abs(pulses[2] - 1490) < 1
 
 

@@ -85,7 +85,7 @@ def test_plans_from_a_moving_state_and_stops(name: str, a: st.DataObject) -> Non
     tr = plan(arm, moving, q2)
     assert_safe(arm, tr)
     assert np.allclose(tr.velocity[0], moving.velocity, atol=1e-9)
-    assert np.allclose(tr.position[-1], q2, atol=1e-9)
+    assert np.allclose(tr.position[-1], q2, atol=5e-8)  # (Ruckig lands on a target to ~1e-8 rad)
     # a stop from the same state: at rest, within limits
     stop = plan_stop(arm, moving)
     assert_safe(arm, stop)

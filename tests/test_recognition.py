@@ -20,7 +20,7 @@ from armd.robots.geometry import Geometry
 from armd.solvers import solve_ik
 
 Edit = Callable[[ET.Element], None]
-DROPPED = ("[geometry]", "[controller]", "[servo]", "[[actuators]]", "[gripper]", "[[sensors]]")
+DROPPED = ("[geometry]", "[controller]", "[servo]", "[[actuators]]", "[actuators.linkage]", "[gripper]", "[[sensors]]")
 
 
 def _without_geometry(toml: str) -> str:

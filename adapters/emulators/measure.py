@@ -98,7 +98,7 @@ def ssc32_speed_noise(robot: Robot, emulator: SSC32Emulator, since: float = -np.
 
 def pulse_resolution(robot: Robot) -> FloatArray:
     """Per joint, how far one microsecond of any servo that moves it moves the joint [rad]."""
-    M = np.abs(robot.actuators.M)
+    M = robot.actuators.gentlest  # (a linkage's |da/dq| where a microsecond moves the joint most)
     res = np.array([a.resolution for a in robot.actuators.actuators])
     moved = M > 0
     return np.array(
@@ -223,6 +223,7 @@ def fitted_peaks(t: FloatArray, p: FloatArray, window: float, dt: float = 0.002)
 
 
 def actuator_limits_deg(robot: Robot) -> tuple[FloatArray, FloatArray]:
-    """Each actuator's velocity [deg/s] and acceleration [deg/s^2] bound: ``|M| @`` the joints' limits."""
-    m = np.abs(robot.actuators.M)
-    return np.degrees(m @ robot.limits.velocity), np.degrees(m @ robot.limits.acceleration)
+    """Each actuator's velocity [deg/s] and acceleration [deg/s^2] bound over the joints' limits
+    (``|M| @`` them; a linkage's with its curvature: ActuatorMap.rate_bounds)."""
+    speed, accel = robot.actuators.rate_bounds(robot.limits.velocity, robot.limits.acceleration)
+    return np.degrees(speed), np.degrees(accel)
