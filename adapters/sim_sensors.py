@@ -26,7 +26,6 @@ from __future__ import annotations
 import json
 import math
 import threading
-import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -34,9 +33,10 @@ from typing import Any
 import numpy as np
 
 from armd.errors import BadRequest
-from armd.robots import Robot
+from armd.robots import Robot, Servo
 from armd.robots.sensors import RangeSensor, models
 
+from .sensor_stream import Sweep, reading
 from .trajectory_message import FloatArray
 
 SHAPES = {"cylinder": 2, "box": 3, "sphere": 1}  # each shape's size: how many numbers
@@ -198,9 +198,7 @@ class SimulatedSensors:
         self.ground = float(ground)
         self.rng = np.random.default_rng(seed)
         self.sensors = [s for s in robot.sensors.values() if s.curve is not None]
-        self._bearing = {s.name: (s.sweep or (0.0, 0.0))[0] for s in self.sensors}
-        self._direction = {s.name: 1 for s in self.sensors}
-        self._sweep = {s.name: 0 for s in self.sensors}
+        self._sweeps = {s.name: Sweep(s) for s in self.sensors if s.mount == "scanner" and s.sweep is not None}
         self._lock = threading.Lock()
 
     def distance(self, origin: FloatArray, direction: FloatArray) -> float:
@@ -212,37 +210,23 @@ class SimulatedSensors:
             best = min(best, o.hit(origin, direction, self.ground))
         return best
 
-    def read(self, sensor: RangeSensor) -> dict[str, Any]:
-        """One reading of ``sensor`` now, its scanner's servo then turned a step."""
+    def volts(self, sensor: RangeSensor, bearing: float | None, q: FloatArray | None) -> float:
+        """``sensor``'s output [V] now, noise included: a scanner at ``bearing``, a sensor on the
+        arm with the arm at ``q``."""
         curve = sensor.curve
         assert curve is not None
         with self._lock:
-            bearing = self._bearing[sensor.name]
-            q = None if sensor.mount == "scanner" else self.pose()
-            origin, direction = self.robot.sensor_ray(sensor.name, bearing, q)
-            volts = curve.volts(self.distance(origin, direction)) + float(self.rng.normal(0.0, curve.noise_volts))
-            rng = curve.distance(volts)
-            msg: dict[str, Any] = {
-                "sensor": sensor.name,
-                "model": sensor.model,
-                "time": time.time(),
-                "adapter": self.adapter,
-                "volts": round(volts, 4),
-                "range": None if rng is None else round(rng, 4),
-                "bearing": None,
-            }
-            if sensor.mount == "scanner" and sensor.sweep is not None:
-                msg.update(
-                    bearing=round(bearing, 6), sweep=self._sweep[sensor.name], direction=self._direction[sensor.name]
-                )
-                lo, hi = sensor.sweep
-                nxt = bearing + self._direction[sensor.name] * sensor.sweep_step
-                if not lo <= nxt <= hi:  # the end of the sweep: back the other way
-                    self._direction[sensor.name] *= -1
-                    self._sweep[sensor.name] += 1
-                    nxt = min(max(nxt, lo), hi)
-                self._bearing[sensor.name] = nxt
-            return msg
+            origin, direction = self.robot.sensor_ray(sensor.name, bearing or 0.0, q)
+            return curve.volts(self.distance(origin, direction)) + float(self.rng.normal(0.0, curve.noise_volts))
+
+    def read(self, sensor: RangeSensor) -> dict[str, Any]:
+        """One reading of ``sensor`` now, its scanner's servo then turned a step."""
+        sweep = self._sweeps.get(sensor.name)
+        q = None if sensor.mount == "scanner" else self.pose()
+        msg = reading(sensor, self.volts(sensor, None if sweep is None else sweep.bearing, q), self.adapter, sweep)
+        if sweep is not None:
+            sweep.step()
+        return msg
 
     def set_objects(self, objects: Sequence[FloorObject]) -> None:
         with self._lock:
@@ -259,3 +243,48 @@ class SimulatedSensors:
                     self.publish(s.name, json.dumps(self.read(s)).encode())
                 except Exception:  # (the session closed under it: the adapter is going)
                     return
+
+
+class AnalogWorld:
+    """The voltages on an SSC-32U's analog inputs from ``robot``'s wired sensors (``pin``) in a
+    world of ``objects``: the SSC-32 emulator's ``analog`` (``emulator.analog = world.volts``).
+
+    A scanner looks along its servo's angle as the board outputs it (``pulse`` of its channel);
+    a sensor on the arm along its frame, the arm where the board's pulses put it. A Sharp sensor
+    measures over a period (its model's, 38.3 ms for the GP2D12) and puts out the result at its
+    end, held until the next one is done: here the output over a period is what the beam met
+    in the middle of the period before. Noise as the simulator's (its model's, per measurement)."""
+
+    def __init__(self, robot: Robot, objects: Sequence[FloorObject], seed: int | None = None) -> None:
+        self.robot = robot
+        self.world = SimulatedSensors(robot, objects, lambda name, payload: None, lambda: robot.neutral, seed=seed)
+        self.pins = {s.pin: s for s in self.world.sensors if s.pin is not None}
+        self.channels = [a.channel for a in robot.actuators.actuators if isinstance(a, Servo)]  # (the SSC-32's)
+        self._held: dict[str, tuple[int, float]] = {}  # pin -> (measurement number, its output [V])
+
+    def set_objects(self, objects: Sequence[FloorObject]) -> None:
+        self.world.set_objects(objects)
+
+    def volts(self, pin: str, t: float, pulse: Callable[[int, float], float]) -> float:
+        """The voltage on ``pin`` at time ``t`` [s, the board's clock] (0: nothing wired to it)."""
+        sensor = self.pins.get(pin)
+        if sensor is None or sensor.curve is None:
+            return 0.0
+        period = sensor.curve.period
+        k = math.floor(t / period)
+        held = self._held.get(pin)
+        if held is not None and held[0] == k:
+            return held[1]
+        start = (k - 0.5) * period  # (the measurement whose output holds now: the period before's, at its middle)
+        if sensor.servo is not None:
+            bearing: float | None = float(sensor.servo.to_angle(np.array(pulse(sensor.servo.channel, start))))
+            q = None
+        else:
+            bearing = None
+            pulses = np.array([pulse(ch, start) for ch in self.channels])
+            q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf) if np.all(pulses > 0) else None
+            if q is None:
+                return 0.0  # (the arm's servos not driven yet: where it looks is not known)
+        v = self.world.volts(sensor, bearing, q)
+        self._held[pin] = (k, v)
+        return v

@@ -51,11 +51,18 @@ per arm in ``state_dir`` when a trajectory ends and when the adapter stops), els
 the state it reports says ``source: "commanded"`` (hobby servos report no position).
 
 The gripper, a separate channel, opens and closes on ``<prefix>/<robot>/gripper``.
+
+Range sensors wired to the board (robot.toml ``[[sensors]] pin``, a scanner's ``channel``) are
+read on its analog inputs between the stream's lines, with the ``QP`` when both are due, their
+scanners stepped through their sweeps, and each reading published on
+``<prefix>/<robot>/sensors/<name>`` (:mod:`.ssc32_sensors`; not while the adapter is faulted), in
+at most ``SENSOR_SHARE`` of the link (a slow link scans slower).
 """
 
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import logging
 import math
@@ -72,11 +79,13 @@ from armd.robots import Robot, Servo
 
 from .base import actuators_of, calibrated, state_dir_default
 from .serial_port import SerialAdapter
+from .ssc32_sensors import SCAN_SPEED, WiredSensors
 from .trajectory_message import Command, FloatArray
 
 log = logging.getLogger(__name__)
 
 LINK_SHARE = 0.6  # of the link's bytes per second the stream may use
+SENSOR_SHARE = 0.2  # of the link's bytes per second the wired sensors' reads and steps may use (QP: the rest)
 MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: refused, the link is too slow)
 LEAD = 0.05  # [s] at least this long before the board reaches a move, the next one is sent
 MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine
@@ -198,7 +207,7 @@ class SSC32Adapter(SerialAdapter):
         self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
         self._seen_at = now
         self._stride = 1
-        self._query: tuple[float, int] | None = None  # (when a QP was written, reply length)
+        self._query: tuple[float, int, int] | None = None  # (when a QP / V read was written, QP bytes, V bytes)
         self._reply = b""
         self._next_query = now
         self._answered = self._faulted_at = -math.inf  # [s] the last QP answer; the last fault
@@ -208,7 +217,14 @@ class SSC32Adapter(SerialAdapter):
             self.serial.close()
             raise ControllerFault(f"no SSC-32 answers on {port} at {self.baud} baud (VER got no reply)")
         log.info("%s on %s at %d baud: %s", robot.name, port, self.baud, self.version)
+        self._sensor_pubs = {
+            s.name: session.declare_publisher(f"{self._base}/sensors/{s.name}")
+            for s in robot.sensors.values()
+            if s.pin is not None and s.curve is not None
+        }
+        self.sensors = WiredSensors(robot, self.id, lambda name, payload: self._sensor_pubs[name].put(payload))
         self._start_up()
+        self._start_sensors()
         self.activate()
 
     # -- start-up -------------------------------------------------------------------------
@@ -258,6 +274,22 @@ class SSC32Adapter(SerialAdapter):
             self.serial.close()
             raise ControllerFault(f"the SSC-32 on {self.port} did not take its first command")
         self._hold_at(q)
+
+    def _start_sensors(self) -> None:
+        """The wired pins made analog (their first read is not valid: discarded), the scanners
+        sent to their sweeps' start, the first read due once they can have got there."""
+        if not self.sensors:
+            return
+        request, n = self.sensors.request, len(self.sensors.sensors)
+        if len(self._ask(request, size=n)) != n:
+            self.serial.close()
+            raise ControllerFault(f"the SSC-32 on {self.port} does not answer {request.decode().strip()}")
+        line = self.sensors.aim()
+        if line:
+            self._write(line)
+        spans = [s.servo.us_per_rad * (s.sweep[1] - s.sweep[0]) for s in self.sensors.sensors if s.servo and s.sweep]
+        travel = max(spans, default=0.0) / SCAN_SPEED  # [s] from anywhere in a sweep to its start
+        self.sensors.ready_at = max(time.monotonic(), self._link_free) + travel + self.sensors.settle_time()
 
     def _left_at(self) -> tuple[FloatArray, str]:
         """The pose the arm was last commanded to (kept in ``state_file``), else neutral."""
@@ -652,7 +684,10 @@ class SSC32Adapter(SerialAdapter):
         fault if it is overdue or disagrees with the model, ask again when it is time."""
         self._poll_reply()
         now = time.monotonic()
-        overdue = self._query is not None and now - self._query[0] > self.timeout + self._query[1] * 10.0 / self.baud
+        overdue = (
+            self._query is not None
+            and now - self._query[0] > self.timeout + (self._query[1] + self._query[2]) * 10.0 / self.baud
+        )
         if overdue:
             self._query = None
             self._reply = b""
@@ -669,8 +704,11 @@ class SSC32Adapter(SerialAdapter):
         elif overdue:
             self._faulted_at = now
             raise ControllerFault(f"SSC-32 on {self.port} does not answer (QP got no reply in {self.timeout} s)")
-        if self._query is None and now >= self._next_query:
-            request = self._qp_request()
+        qp_due = now >= self._next_query
+        sense_due = bool(self.sensors) and not self.fault and now >= self.sensors.ready_at
+        if self._query is None and (qp_due or sense_due):
+            # one write, the board's answers in order: the QP's bytes, then the analog inputs'
+            request = (self._qp_request() if qp_due else b"") + (self.sensors.request if sense_due else b"")
             with self._io:
                 try:
                     self.serial.reset_input_buffer()
@@ -678,8 +716,9 @@ class SSC32Adapter(SerialAdapter):
                     raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
             asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
             self._write(request)
-            self._query = (asked, len(self.channels))
-            self._next_query = now + self.query_period
+            self._query = (asked, len(self.channels) if qp_due else 0, len(self.sensors.sensors) if sense_due else 0)
+            if qp_due:
+                self._next_query = now + self.query_period
         if self.fault:
             raise ControllerFault(self.fault)
 
@@ -693,10 +732,19 @@ class SSC32Adapter(SerialAdapter):
         except serial.SerialException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
         self._reply += chunk
-        asked, size = self._query
-        if len(self._reply) < size:
+        asked, size, analog = self._query
+        if len(self._reply) < size + analog:
             return
-        reply, self._reply, self._query = self._reply[:size], b"", None
+        reply, volts, self._reply, self._query = self._reply[:size], self._reply[size : size + analog], b"", None
+        if analog:  # the readings published; the scanners' step written, the next read due once it is done
+            step = self.sensors.answered(volts)
+            if step and not self.fault:
+                self._write(step)
+            now = time.monotonic()
+            share = (len(self.sensors.request) + len(step) + analog) / (SENSOR_SHARE * self.baud / 10.0)  # [s]
+            self.sensors.ready_at = max(max(now, self._link_free) + self.sensors.settle_time(), now + share)
+        if not size:
+            return
         self._answered = time.monotonic()
         self._answer = np.array([10.0 * b for b in reply])
         if self.fault:
@@ -751,6 +799,9 @@ class SSC32Adapter(SerialAdapter):
 
     def shutdown(self) -> None:
         self._save_pose()
+        for pub in self._sensor_pubs.values():
+            with contextlib.suppress(zenoh.ZError):
+                pub.undeclare()
         try:
             self.serial.close()
         except Exception:  # already gone

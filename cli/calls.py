@@ -119,7 +119,7 @@ def cmd_sequence(args: argparse.Namespace) -> int:
 
 def cmd_detect(args: argparse.Namespace) -> int:
     with _client(args) as c:
-        r = c.detect(args.robot, sweeps=args.sweeps, sensors=args.sensor)
+        r = c.detect(args.robot, sweeps=args.sweeps, sensors=args.sensor, wait=args.wait)
     if args.json:
         print(json.dumps(r, indent=2))
         return 0
@@ -340,6 +340,12 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     p.add_argument("robot")
     p.add_argument("--sweeps", type=int, default=None, help="how many last sweeps must show an object (default 2)")
     p.add_argument("--sensor", action="append", help="a scanner to look with (default: every scanner)")
+    p.add_argument(
+        "--wait",
+        type=float,
+        default=30.0,
+        help="[s] ask again while the scanners have not swept enough (default 30: a real sweep takes seconds)",
+    )
     _client_args(p)
     p.set_defaults(func=cmd_detect)
 

@@ -413,14 +413,30 @@ class ArmClient:
         req = {"target": _jsonable(target), **{k: v for k, v in options.items() if v is not None}}
         return self.call(f"{robot}/{verb}", req, timeout=timeout)
 
-    def detect(self, robot: str, *, sweeps: int | None = None, sensors: Sequence[str] | None = None) -> dict[str, Any]:
-        """The objects ``robot``'s scanning sensors see (the reply of ``detect``: its ``objects``)."""
+    def detect(
+        self, robot: str, *, sweeps: int | None = None, sensors: Sequence[str] | None = None, wait: float = 0.0
+    ) -> dict[str, Any]:
+        """The objects ``robot``'s scanning sensors see (the reply of ``detect``: its ``objects``).
+
+        ``wait`` [s]: while the scanners have not swept enough yet (``not_ready``: a real
+        scanner's sweep takes seconds, docs/sensors.md), ask again until then."""
+        import time
+
+        from armd.errors import ArmdError
+
         req: dict[str, Any] = {}
         if sweeps is not None:
             req["sweeps"] = sweeps
         if sensors is not None:
             req["sensors"] = list(sensors)
-        return self.call(f"{robot}/detect", req)
+        until = time.monotonic() + wait
+        while True:
+            try:
+                return self.call(f"{robot}/detect", req)
+            except ArmdError as e:
+                if e.code != "not_ready" or time.monotonic() >= until:
+                    raise
+            time.sleep(0.25)
 
     def wait_until_still(
         self, robot: str, goal: FloatArray | None = None, *, timeout: float = 10.0, tolerance: float = 2e-3

@@ -206,6 +206,8 @@ class _Builder:
         self.folder = folder
         self.file = file
         self.top = _Table(file, doc, "")
+        # [servo]'s us per rad and pulse range (read with the actuators; a scanner's servo takes them too)
+        self._servo_defaults: tuple[float, tuple[float, float]] = (1000.0 / (math.pi / 2), (500.0, 2500.0))
 
     def build(self) -> Robot:
         top = self.top
@@ -255,7 +257,7 @@ class _Builder:
         roll = roll_joint(model, tool_frame, joint_names, geometry, tool_axis) if geometry is not None else None
         collision = self._collision(top, model, urdf_name, neutral)
         actuators, gripper = self._actuators(top, index, limits)
-        sensors = self._sensors(top, frames)
+        sensors = self._sensors(top, frames, actuators, gripper)
         controller: dict[str, object] = {}
         if top.has("controller"):
             ctl = top.table("controller")
@@ -582,6 +584,7 @@ class _Builder:
         us_per_90 = servo_defaults.number("us_per_90deg", 1000.0, positive=True)
         default_range = servo_defaults.vector("pulse_range", 2, [500.0, 2500.0])
         servo_defaults.finish()
+        self._servo_defaults = (us_per_90 / (math.pi / 2), (default_range[0], default_range[1]))
         tables = top.tables("actuators")
         if not tables:  # an arm for IK, plans and simulation: a hardware adapter refuses it (it says why)
             if top.has("gripper"):
@@ -739,8 +742,15 @@ class _Builder:
             gt.finish()
         return ActuatorMap(tuple(actuators), rows, offsets, linkages), gripper
 
-    def _sensors(self, top: _Table, frames: set[str]) -> dict[str, RangeSensor]:
+    def _sensors(
+        self, top: _Table, frames: set[str], actuators: ActuatorMap, gripper: Gripper | None
+    ) -> dict[str, RangeSensor]:
         out: dict[str, RangeSensor] = {}
+        ssc32 = top.has("controller") and top.table("controller").data.get("type") == "ssc32"
+        channels = {a.channel: a.name for a in actuators.actuators if isinstance(a, Servo)}
+        if gripper is not None:
+            channels[gripper.channel] = "the gripper"
+        pins: dict[str, str] = {}
         for t in top.tables("sensors"):
             name = t.string("name")
             if name in out:
@@ -764,16 +774,74 @@ class _Builder:
                     position=(x, y, z),
                     sweep=(sweep[0], sweep[1]),
                     sweep_step=step,
+                    pin=self._pin(t, ssc32, pins, name),
+                    servo=self._scanning_servo(t, ssc32, channels, name, (sweep[0], sweep[1])),
                 )
             elif mount == "frame":
                 frame = t.string("frame")
                 if frame not in frames:
                     raise t.error("frame", f"the URDF has no frame {frame!r}")
-                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]), frame=frame)
+                pin = self._pin(t, ssc32, pins, name)
+                out[name] = RangeSensor(name, model_name, mount, (rng[0], rng[1]), frame=frame, pin=pin)
             else:
                 raise t.error("mount", f"must be 'scanner' or 'frame', got {mount!r}")
             t.finish()
         return out
+
+    def _pin(self, t: _Table, ssc32: bool, pins: dict[str, str], name: str) -> str | None:
+        """``pin``: the SSC-32U analog input ("A".."H") the sensor's output is wired to."""
+        if not t.has("pin"):
+            return None
+        if not ssc32:
+            raise t.error("pin", "is an SSC-32U's analog input: this arm's [controller] is not an SSC-32")
+        pin = t.string("pin").upper()
+        if len(pin) != 1 or pin not in "ABCDEFGH":
+            raise t.error("pin", f"must be one of the SSC-32U's analog inputs A to H, got {pin!r}")
+        if pin in pins:
+            raise t.error("pin", f"pin {pin} is already {pins[pin]!r}'s")
+        pins[pin] = name
+        return pin
+
+    def _scanning_servo(
+        self, t: _Table, ssc32: bool, channels: dict[int, str], name: str, sweep: tuple[float, float]
+    ) -> Servo | None:
+        """``channel`` (with ``centre_pulse``, ``direction``): the scanner's servo on the SSC-32;
+        its angle is the bearing, and its sweep must map inside its pulse range."""
+        if not t.has("channel"):
+            for key in ("centre_pulse", "direction"):
+                if t.has(key):
+                    raise t.error(key, "goes with channel (the scanning servo's)")
+            return None
+        if not ssc32:
+            raise t.error("channel", "is an SSC-32 channel: this arm's [controller] is not an SSC-32")
+        channel = t.integer("channel", minimum=0)
+        if channel > 31:
+            raise t.error("channel", f"must be 0..31, got {channel}")
+        if channel in channels:
+            raise t.error("channel", f"channel {channel} is already {channels[channel]!r}'s")
+        direction = t.integer("direction", 1)
+        if direction not in (1, -1):
+            raise t.error("direction", f"must be 1 or -1, got {direction}")
+        us_per_rad, pulse_range = self._servo_defaults
+        servo = Servo(
+            name=f"{name} scanner",
+            channel=channel,
+            centre_pulse=t.number("centre_pulse", 1500.0),
+            centre_angle=0.0,
+            direction=direction,
+            us_per_rad=us_per_rad,
+            pulse_range=pulse_range,
+            angle_range=sweep,
+        )
+        ends = sorted(float(servo.to_command(np.array(b))) for b in sweep)
+        if ends[0] < pulse_range[0] or ends[1] > pulse_range[1]:
+            raise t.error(
+                None,
+                f"its sweep [{sweep[0]:.4f}, {sweep[1]:.4f}] rad maps to pulses [{ends[0]:.1f}, {ends[1]:.1f}] us, "
+                f"outside {list(pulse_range)} us",
+            )
+        channels[channel] = f"{name} scanner"
+        return servo
 
 
 _AXES = {"x": 0, "y": 1, "z": 2}

@@ -9,6 +9,10 @@ needs the joint vector.
 A sensor's model (``model``, a name of ``sensor_models.toml``: the Sharp GP2D12 and GP2D120)
 gives its output voltage against distance (:class:`SensorModel`), so that a reading may be
 given as the voltage the sensor put out (``volts``) and the simulator's sensors put one out.
+
+A sensor wired to the arm's SSC-32U has the analog input its output goes to (``pin``, "A" to
+"H") and, a scanner, the board's channel of its scanning servo (``servo``: bearing = the servo's
+angle): the SSC-32 adapter then sweeps and reads it (docs/sensors.md).
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import tomllib
 
 from armd.errors import BadRequest
 
+from .actuators import Servo
 from .types import FloatArray
 
 MODELS_FILE = Path(__file__).with_name("sensor_models.toml")
@@ -104,6 +109,10 @@ class RangeSensor:
     frame: str | None = None  # frame mount: the URDF frame it looks along (+x)
     sweep: tuple[float, float] | None = None  # scanner: its servo's bearings [rad], end to end
     sweep_step: float = 0.035  # scanner: [rad] its servo's turn between readings
+    # wired to an SSC-32U: the analog input (pin "A".."H") its output is read on, and a scanner's
+    # servo on the board (its angle: the bearing); None: read by something else (the simulator)
+    pin: str | None = None
+    servo: Servo | None = None
 
     @property
     def curve(self) -> SensorModel | None:

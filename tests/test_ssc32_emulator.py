@@ -12,6 +12,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import serial
@@ -153,6 +154,42 @@ def test_qp_follows_the_motion(fake: tuple[SSC32Emulator, serial.Serial, FakeClo
     clock.now += 0.5
     ser.write(b"QP0\r")
     assert ser.read(1) == bytes([150])
+
+
+def test_analog_inputs_answer_a_byte_each_the_first_read_not_valid(
+    fake: tuple[SSC32Emulator, serial.Serial, FakeClock],
+) -> None:
+    """The guide: V<pin> answers one byte, the volts times 256/5 (2 V: 102, 3.5 V: 179); the
+    first read of a pin makes it analog and is not valid (the pull-up's level); a power cycle
+    makes it digital again. The board's filter: a read sees the pin as it was 8 ms before."""
+    emu, ser, clock = fake
+    seen: list[tuple[str, float]] = []
+
+    def volts(pin: str, t: float, pulse: Any) -> float:
+        seen.append((pin, t))
+        return {"A": 2.0, "B": 3.5, "C": 6.0, "D": -0.3}.get(pin, 0.0)
+
+    emu.analog = volts
+    clock.now = 10.0
+    ser.write(b"VA VB\r")
+    assert ser.read(2) == bytes([255, 255])  # (made analog: not valid data)
+    assert seen == []
+    ser.write(b"VAVB\r")
+    assert ser.read(2) == bytes([102, 179])  # the guide's own example
+    assert seen == [("A", pytest.approx(9.992)), ("B", pytest.approx(9.992))]
+    ser.write(b"vc\r")
+    assert ser.read(1) == bytes([255])
+    ser.write(b"VDVH\r")
+    assert ser.read(2) == bytes([255, 255])
+    ser.write(b"VCVDVH\r")  # over 4.98 V: 255; below 0: 0; nothing wired: 0
+    assert ser.read(3) == bytes([255, 0, 0])
+    emu.power_cycle()
+    ser.write(b"VA\r")
+    assert ser.read(1) == bytes([255])
+    ser.write(b"VI\r")  # no pin I
+    ser.timeout = 0.1
+    assert ser.read(1) == b""
+    assert emu.errors == ["VI"]
 
 
 def test_ver(ser: serial.Serial) -> None:

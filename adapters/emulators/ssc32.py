@@ -22,10 +22,19 @@ and only then takes effect:
 - ``VER<cr>``: the version string and a carriage return.
 - ``STOP<ch><cr>`` (SSC-32U): stops that servo where it is. As the guide says, ``Q`` still answers
   ``+`` until the original move's time has elapsed.
+- ``VA<cr>`` .. ``VH<cr>`` (also ``VAVB...``): the analog inputs on pins A to H, one binary byte
+  each, the voltage times 256/5 (255: 4.98 V and above), as the guide says. The pins' voltages
+  are ``analog(pin, t, pulse)`` [V], where ``pulse(channel, t)`` is a channel's output then (a
+  sensor on a scanning servo: :class:`armd.adapters.sim_sensors.AnalogWorld`; none: 0 V). The
+  board filters its inputs digitally, settling "within 8 mS of a change": here a read gives the
+  voltage ``ANALOG_SETTLE`` before it is executed. A pin is a digital input with a pull-up at
+  power-up; "the first time a V* command is used, the pin will be converted to analog without
+  pullup. The result of this first read will not return valid data": here it returns the
+  pull-up's 255. A power cycle makes every pin digital again.
 
 Spaces, tabs and line feeds are ignored, as the guide says, and letters may be either case: only
 ``\\r`` ends a command, so ``#0P1500\\n`` waits for a ``\\r`` and ``#0P15\\n00\\r`` is ``#0P1500``.
-Anything else (offsets ``PO``, digital outputs ``L``/``H``, inputs ``A``-``H``, registers, ``#<ch>P``
+Anything else (offsets ``PO``, digital outputs ``L``/``H``, digital inputs ``A``-``F``, registers, ``#<ch>P``
 with a channel above 31, ...) is ignored and recorded in ``errors``.
 
 The link and the board's timing (``baud``, ``query_delay``; all times on ``clock``):
@@ -39,7 +48,7 @@ The link and the board's timing (``baud``, ``query_delay``; all times on ``clock
   arrival of its ``\\r``: that is the time ``history`` records and the board's state changes, exactly,
   whenever the emulator's thread gets to it. The host must open the port at ``baud`` (below).
   ``baud=None`` is an ideal link (instant, at any rate the host sets), for exact tests on a frozen clock.
-- Replies to ``Q``, ``QP`` and ``VER`` leave the board ``query_delay`` after the query has been executed
+- Replies to ``Q``, ``QP``, ``V*`` and ``VER`` leave the board ``query_delay`` after the query has been executed
   (the guide: 50 us to 5 ms, "typically within 100 us"; the default is 100 us), then travel back at the
   same rate: each byte is written to the terminal when its last bit would have reached the host.
 - Opening and closing the port does not reset the board (the terminal's other end stays open): it keeps
@@ -83,6 +92,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from .pty import PtyEmulator
 
@@ -90,6 +100,8 @@ PULSE_MIN = 500  # [us], the manual's range
 PULSE_MAX = 2500  # [us]
 CHANNELS = 32
 TIME_MAX = 65535  # [ms], the longest T the board takes
+ANALOG_PINS = "ABCDEFGH"  # the SSC-32U's analog inputs
+ANALOG_SETTLE = 0.008  # [s] the guide: filtered values "settle to their final values within 8 mS of a change"
 BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
 FACTORY_BAUD = 9600  # the SSC-32U as shipped
 DEFAULT_BAUD = 115200  # what the project's adapter opens at
@@ -99,6 +111,7 @@ _GROUP = re.compile(r"(?:#\d+P\d+(?:S\d+)?)+(?:T\d+)?")
 _ITEM = re.compile(r"#(\d+)P(\d+)(?:S(\d+))?")
 _QUERY_PULSES = re.compile(r"(?:QP\d+)+")
 _STOP = re.compile(r"STOP(\d+)")
+_ANALOG = re.compile(r"(?:V[A-H])+")
 _TERMIOS_BAUDS = {
     getattr(termios, f"B{r}"): r
     for r in (1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200, 230400)
@@ -170,6 +183,9 @@ class SSC32Emulator(PtyEmulator):
         self.out_of_range: list[tuple[int, int]] = []  # (channel, pulse [us]) received outside 500..2500
         self.errors: list[str] = []  # lines not understood, as received
         self.responding = True  # False: reads and discards everything, answers and executes nothing
+        # (pin A..H, time [s], a channel's pulse [us] at a time) -> the volts on the pin
+        self.analog: Callable[[str, float, Callable[[int, float], float]], float] | None = None
+        self._analog_pins: set[str] = set()  # pins a V* read has made analog (until a power cycle)
         self._input_delay = 0.0  # [s] how long the host holds the next bytes written (delay_input)
         self._servos: dict[int, _Servo] = {}  # channels with pulses
         self._off_since: dict[int, float] = {}  # channels turned off (P0, power cycle): since when [s]
@@ -240,6 +256,7 @@ class SSC32Emulator(PtyEmulator):
             for ch in list(self._servos):
                 self._set(ch, None, now)
             self._busy_until = -math.inf
+            self._analog_pins.clear()
             self._line.clear()
             self._tx.clear()
             self._tx_free = -math.inf
@@ -339,6 +356,8 @@ class SSC32Emulator(PtyEmulator):
             channels = [int(c) for c in re.findall(r"\d+", cmd)]
             if all(ch < CHANNELS for ch in channels):
                 return bytes(min(255, int(self._pulse_at(ch, now)) // 10) for ch in channels)
+        elif _ANALOG.fullmatch(cmd):
+            return bytes(self._analog_read(pin, now) for pin in cmd[1::2])
         elif (m := _STOP.fullmatch(cmd)) and int(m[1]) < CHANNELS:
             self._stop_servo(int(m[1]), now)
             return b""
@@ -346,6 +365,14 @@ class SSC32Emulator(PtyEmulator):
             return b""
         self.errors.append(text)
         return b""
+
+    def _analog_read(self, pin: str, now: float) -> int:
+        """Pin ``pin``'s byte: its voltage as the board's filter has it, times 256/5."""
+        if pin not in self._analog_pins:  # its first read: made analog, the pull-up's level read
+            self._analog_pins.add(pin)
+            return 255
+        volts = self.analog(pin, now - ANALOG_SETTLE, self._pulse_at) if self.analog is not None else 0.0
+        return max(0, min(255, math.floor(volts * 256.0 / 5.0)))
 
     def _pulse_at(self, channel: int, now: float) -> float:
         servo = self._servos.get(channel)
@@ -433,8 +460,16 @@ def main(argv: list[str] | None = None) -> int:
         " the same rate, or nothing is executed; 0: an instant link that takes any rate",
     )
     parser.add_argument("--query-delay", type=float, default=100e-6, help="seconds before a query's reply leaves")
+    parser.add_argument(
+        "--robot", help="an arm whose wired range sensors (robot.toml [[sensors]] pin) put out voltages on the pins"
+    )
+    parser.add_argument(
+        "--objects", metavar="FILE", help="with --robot: the objects its sensors see, as armd serve --objects takes"
+    )
     args = parser.parse_args(argv)
     with SSC32Emulator(version=args.ver, baud=args.baud or None, query_delay=args.query_delay) as emu:
+        if args.robot:
+            emu.analog = _analog_world(args.robot, args.objects).volts
         print(emu.port, flush=True)
         logs: dict[str, Sequence[object]] = {
             "move": emu.history,
@@ -452,6 +487,18 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             pass
     return 0
+
+
+def _analog_world(robot: str, objects: str | None) -> Any:
+    """``robot``'s wired sensors in the world of ``objects`` (a file: ``{"<robot>": [objects]}``)."""
+    import json
+    from pathlib import Path
+
+    from armd import robots
+    from armd.adapters.sim_sensors import AnalogWorld, objects_of
+
+    specs = json.loads(Path(objects).read_text(encoding="utf-8")).get(robot, []) if objects else []
+    return AnalogWorld(robots.load(robot), objects_of(specs))
 
 
 if __name__ == "__main__":
