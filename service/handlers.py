@@ -17,6 +17,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
 from armd import planning, solvers
@@ -282,34 +283,27 @@ class Handlers:
             if arm.name in self._sequencing:
                 raise Busy(f"{arm.name} is running a pick or place already: one at a time", robot=arm.name)
             self._sequencing.add(arm.name)
+        asked = _SequenceAsked(verb, point, approach, above, lift, speed)
         try:
-            return self._run_sequence(arm, verb, req, deadline, known, point, approach, above, lift, speed, stops)
+            return self._run_sequence(arm, asked, deadline, known.state, stops)
         finally:
             with self._world_lock:
                 self._sequencing.discard(arm.name)
 
     def _run_sequence(
-        self,
-        arm: Robot,
-        verb: str,
-        req: Mapping[str, Any],
-        deadline: Deadline,
-        known: Any,
-        point: Any,
-        approach: str,
-        above: float,
-        lift: float,
-        speed: float,
-        stops: int,
+        self, arm: Robot, asked: _SequenceAsked, deadline: Deadline, state: Any, stops: int
     ) -> dict[str, Any]:
+        """Check every step of ``asked`` from the arm's ``state``, then run them (the stop count
+        ``stops`` as it was when the request came: a stop since ends it)."""
+        verb = asked.verb
 
         def fresh() -> Deadline:
             return Deadline(time.monotonic(), self.limits.deadline)
 
         seq = Sequence(
             arm,
-            sequence_steps(arm, verb, point, approach, above, lift),
-            speed=speed,
+            sequence_steps(arm, verb, asked.point, asked.approach, asked.above, asked.lift),
+            speed=asked.speed,
             plan=lambda r, start: planning.plan(
                 arm, start, r["goal"], path=r["path"], speed=r["speed"], max_samples=self.limits.max_samples
             ),
@@ -320,11 +314,12 @@ class Handlers:
             estop=lambda: self.publish_estop(arm, {"id": uuid.uuid4().hex, "by": "service"}),
             check=deadline.check,
         )
-        seq.check_all(_at_the_limits(arm, known.state))  # every step, before anything moves
+        seq.check_all(_at_the_limits(arm, state))  # every step, before anything moves
         if self._stop_counts.get(arm.name, 0) != stops:
             raise Rejected(f"{arm.name} was stopped while the {verb} was planned: nothing moved", robot=arm.name)
         deadline.check()
-        return {"verb": verb, "target": [float(x) for x in point], "approach": approach, **seq.run(stops)}
+        target = [float(x) for x in asked.point]
+        return {"verb": verb, "target": target, "approach": asked.approach, **seq.run(stops)}
 
     # -- what the sensors see ----------------------------------------------------------------
 
@@ -517,3 +512,16 @@ def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
     except ValueError:
         return None
     return None if implausible(arm, there) else there
+
+
+@dataclass(frozen=True)
+class _SequenceAsked:
+    """A pick or place as asked and checked: the verb, the point [m], the approach, the heights
+    above and to lift [m], and the speed."""
+
+    verb: str
+    point: Any
+    approach: str
+    above: float
+    lift: float
+    speed: float

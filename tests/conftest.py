@@ -224,3 +224,51 @@ def converse(
             proc.wait()
     time.sleep(0.05)
     return code, said, "".join(err)
+
+
+# -- an adapter as a user runs it, then `armd move` ---------------------------------------------
+
+import contextlib  # noqa: E402
+
+
+@contextlib.contextmanager
+def adapter_process(args: list[str], tmp_path: Path) -> Iterator[subprocess.Popen[bytes]]:
+    """``armd adapter <args>`` as its own process (its state in ``tmp_path``, its log in
+    ``tmp_path/adapter.log``), terminated at the end."""
+    env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
+    with (tmp_path / "adapter.log").open("w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "armd.cli", "adapter", *args],
+            cwd=ROOT,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=log,
+        )
+        try:
+            yield proc
+        finally:
+            proc.terminate()
+            proc.wait(timeout=10)
+
+
+def cli_move(robot: str, goal: list[float], router: str, *more: str) -> subprocess.CompletedProcess[str]:
+    """``armd move ROBOT --goal ... --wait`` as a user runs it."""
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "armd.cli",
+            "move",
+            robot,
+            "--goal",
+            *map(str, goal),
+            "--wait",
+            *more,
+            "--connect",
+            router,
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )

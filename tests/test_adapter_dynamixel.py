@@ -4,9 +4,6 @@ ROBOTIS's SDK, with the real service over Zenoh: the OpenManipulator-X of exampl
 from __future__ import annotations
 
 import contextlib
-import os
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from conftest import collect, wait_for
+from conftest import adapter_process, cli_move, collect, wait_for
 
 from armd import robots
 from armd.adapters.emulators.dynamixel import DynamixelEmulator
@@ -130,37 +127,10 @@ def test_an_alarm_is_a_fault_until_an_operator_unlocks(
 def test_the_omx_end_to_end_from_the_command_line(
     router: str, omx: robots.Robot, omx_service: Any, tmp_path: Path
 ) -> None:
-    env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
     with EmulatorProcess(DynamixelEmulator, ids=IDS) as emu:
-        log = (tmp_path / "adapter.log").open("w")
-        cmd = ["adapter", "dynamixel", NAME, "--robots-dir", str(ARMS), "--port", emu.port, "--connect", router]
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "armd.cli", *cmd], cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=log
-        )
-        try:
+        cmd = ["dynamixel", NAME, "--robots-dir", str(ARMS), "--port", emu.port, "--connect", router]
+        with adapter_process(cmd, tmp_path):
             wait_for(lambda: omx_service._adapter_count(omx) == 1, timeout=30, what="the adapter's token")
-            done = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "armd.cli",
-                    "move",
-                    NAME,
-                    "--goal",
-                    *map(str, GOAL),
-                    "--wait",
-                    "--connect",
-                    router,
-                ],
-                cwd=ROOT,
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=60,
-            )
+            done = cli_move(NAME, list(GOAL), router)
             assert done.returncode == 0, done.stderr
             assert np.max(np.abs(joints_of(omx, emu) - GOAL)) < 0.02
-        finally:
-            proc.terminate()
-            proc.wait(timeout=10)
-            log.close()

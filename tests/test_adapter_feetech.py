@@ -4,9 +4,6 @@ has its own CPUs), through the vendor's SDK, with the real service over Zenoh: t
 from __future__ import annotations
 
 import contextlib
-import os
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 import zenoh
-from conftest import collect, wait_for
+from conftest import adapter_process, cli_move, collect, wait_for
 
 from armd import robots
 from armd.adapters.emulators.feetech import FeetechEmulator
@@ -259,40 +256,11 @@ def test_a_calibration_maps_the_servos_and_one_that_contradicts_the_limits_is_re
 def test_the_so101_end_to_end_from_the_command_line(router: str, service: object, tmp_path: Path) -> None:
     """``armd adapter feetech so101 --port ...`` as a user runs it, then ``armd move``."""
     arm = robots.load("so101")
-    env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
-    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu:
-        log = (tmp_path / "adapter.log").open("w")
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "armd.cli", "adapter", "feetech", "so101", "--port", emu.port, "--connect", router],
-            cwd=ROOT,
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=log,
-        )
-        try:
-            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
-            done = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "armd.cli",
-                    "move",
-                    "so101",
-                    "--goal",
-                    *map(str, GOAL),
-                    "--wait",
-                    "--connect",
-                    router,
-                ],
-                cwd=ROOT,
-                env=env,
-                capture_output=True,
-                text=True,
-                timeout=60,
-            )
-            assert done.returncode == 0, done.stderr
-            assert np.max(np.abs(joints_of(arm, emu) - GOAL)) < 0.02
-        finally:
-            proc.terminate()
-            proc.wait(timeout=10)
-            log.close()
+    with (
+        EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu,
+        adapter_process(["feetech", "so101", "--port", emu.port, "--connect", router], tmp_path),
+    ):
+        wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
+        done = cli_move("so101", list(GOAL), router)
+        assert done.returncode == 0, done.stderr
+        assert np.max(np.abs(joints_of(arm, emu) - GOAL)) < 0.02
