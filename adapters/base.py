@@ -78,6 +78,13 @@ def actuators_of(robot: Robot, kind: type[A], adapter: str) -> list[A]:
         raise BadRequest(
             f"{robot.name}'s actuators are not all {what}: the {adapter} adapter drives {what}", field="robot"
         )
+    if robot.actuators.linkages and adapter != "SSC-32":
+        behind = ", ".join(robot.actuators.names[k] for k in robot.actuators.linkages)
+        raise BadRequest(
+            f"{robot.name}'s {behind} turns through a four-bar linkage: the SSC-32 adapter drives such servos, "
+            f"the {adapter} adapter does not yet (its speed and acceleration settings assume a linear map)",
+            field="robot",
+        )
     return drives
 
 

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from armd.errors import BadRequest
+from armd.errors import ArmdError, BadRequest
 from armd.robots import Robot, Servo
 from armd.robots.sensors import RangeSensor, models
 
@@ -282,9 +282,12 @@ class AnalogWorld:
         else:
             bearing = None
             pulses = np.array([pulse(ch, start) for ch in self.channels])
-            q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf) if np.all(pulses > 0) else None
+            try:
+                q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf) if np.all(pulses > 0) else None
+            except ArmdError:  # (a linkage's servo where the linkage cannot be)
+                q = None
             if q is None:
-                return 0.0  # (the arm's servos not driven yet: where it looks is not known)
+                return 0.0  # (the arm's servos not driven yet, or nowhere: where it looks is not known)
         v = self.world.volts(sensor, bearing, q)
         self._held[pin] = (k, v)
         return v

@@ -73,7 +73,7 @@ import numpy as np
 import serial
 import zenoh
 
-from armd.errors import BadRequest, ControllerFault
+from armd.errors import ActuatorMapError, BadRequest, ControllerFault
 from armd.planning import JointState
 from armd.robots import Robot, Servo
 
@@ -85,6 +85,7 @@ from .trajectory_message import Command, FloatArray
 log = logging.getLogger(__name__)
 
 LINK_SHARE = 0.6  # of the link's bytes per second the stream may use
+QUIET = 0.1  # [s] the link from the board quiet this long after an overdue answer, before asking again
 SENSOR_SHARE = 0.2  # of the link's bytes per second the wired sensors' reads and steps may use (QP: the rest)
 MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: refused, the link is too slow)
 LEAD = 0.05  # [s] at least this long before the board reaches a move, the next one is sent
@@ -166,7 +167,8 @@ class SSC32Adapter(SerialAdapter):
             serial_port=serial_port,
         )
         lim = robot.limits
-        self._vmax, self._amax = lim.velocity, lim.acceleration
+        self._vlim, self._alim = lim.velocity, lim.acceleration
+        self._vmax, self._amax = self._limits_for(self.lead + 0.02), lim.acceleration
         amap = robot.actuators  # [rad] per joint, half a microsecond of a servo that moves it (the most of any)
         self._half_pulse = np.array(
             [
@@ -207,7 +209,9 @@ class SSC32Adapter(SerialAdapter):
         self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
         self._seen_at = now
         self._stride = 1
-        self._query: tuple[float, int, int] | None = None  # (when a QP / V read was written, QP bytes, V bytes)
+        self._query: tuple[float, int, bool] | None = None  # (when a QP was written, reply bytes, with the sensors')
+        self._quiet_since: float | None = None  # [s] an answer was overdue: the last byte that came late since
+        self._fault_noted = False
         self._reply = b""
         self._next_query = now
         self._answered = self._faulted_at = -math.inf  # [s] the last QP answer; the last fault
@@ -241,11 +245,18 @@ class SSC32Adapter(SerialAdapter):
             # the board still outputs it, is exact; else the middle of what QP allows
             kept, _ = self._left_at()
             exact = amap.command_values(kept)
-            q = (
-                kept
-                if np.all((exact >= pulses - 0.5) & (exact < pulses + 10.5))
-                else amap.joints_from_commands(pulses + 5.0, tol=np.inf)
-            )
+            try:
+                q = (
+                    kept
+                    if np.all((exact >= pulses - 0.5) & (exact < pulses + 10.5))
+                    else amap.joints_from_commands(pulses + 5.0, tol=np.inf)
+                )
+            except ActuatorMapError as e:  # (a linkage's servo where the linkage cannot be)
+                self.serial.close()
+                raise ControllerFault(
+                    f"the SSC-32 on {self.port} holds {self.robot.name} where no joint vector is ({e.message}): "
+                    "move the arm inside its limits by hand (power off) first"
+                ) from None
             lim = self.robot.limits
             if not lim.contains(q, tol=0.02):
                 bad = lim.violations(q, tol=0.02)
@@ -280,7 +291,7 @@ class SSC32Adapter(SerialAdapter):
         sent to their sweeps' start, the first read due once they can have got there."""
         if not self.sensors:
             return
-        request, n = self.sensors.request, len(self.sensors.sensors)
+        request, n = self.sensors.request, self.sensors.reply_size
         if len(self._ask(request, size=n)) != n:
             self.serial.close()
             raise ControllerFault(f"the SSC-32 on {self.port} does not answer {request.decode().strip()}")
@@ -427,6 +438,21 @@ class SSC32Adapter(SerialAdapter):
         first = self._pieces[0][0] if self._pieces else self._p0
         return np.where(np.isnan(out), first, out)
 
+    def _limits_for(self, span: float) -> FloatArray:
+        """The joints' velocity limits a line of ``span`` [s] aims within.
+
+        The board moves a servo linearly in pulses; a joint behind a linkage (desk4's minor) then
+        moves along a curve, its speed changing along the piece (``q'' = -(a''/a') q'^2`` along
+        the driven joint): its average is kept to ``vmax / (1 + k vmax span / 2)`` (``k``: the
+        linkage's largest ``|a''| / |a'|``) so that the piece's fastest is within ``vmax``. Other
+        joints: their limits."""
+        v = self._vlim.copy()
+        for link in self.robot.actuators.linkages.values():
+            j = link.driven
+            k = float(link.curvature[j, j]) / float(link.gentlest[j])
+            v[j] = self._vlim[j] / (1.0 + k * self._vlim[j] * span / 2.0)
+        return v
+
     def _stream(self, cmd: Command, first: bool, period: float, lead: float) -> None:
         """Send the next line of ``cmd`` (:meth:`_aim`), timed for when the board will have each
         of its commands: if this thread was held up meanwhile, aimed again.
@@ -438,6 +464,8 @@ class SSC32Adapter(SerialAdapter):
         distance lost)."""
         ms = max(1, round((lead + period) * 1000.0))  # [ms] a timed group's T
         span = ms / 1000.0  # [s] the next line replaces this one a period in: a lead to spare
+        if self.robot.actuators.linkages:
+            self._vmax = self._limits_for(span)
         byte = 10.0 / self.baud
         amap = self.robot.actuators
         start = max(time.monotonic(), self._link_free)
@@ -681,16 +709,21 @@ class SSC32Adapter(SerialAdapter):
 
     def check(self) -> None:
         """The control loop's look at the board, never waiting: read a QP answer if it came,
-        fault if it is overdue or disagrees with the model, ask again when it is time."""
+        fault if it is overdue or disagrees with the model, ask again when it is time (after an
+        overdue answer, once the link has been quiet for ``QUIET``: its late bytes must not be
+        taken for the next answer)."""
         self._poll_reply()
         now = time.monotonic()
-        overdue = (
-            self._query is not None
-            and now - self._query[0] > self.timeout + (self._query[1] + self._query[2]) * 10.0 / self.baud
-        )
+        if self.fault and not self._fault_noted:  # (whatever raised it: recovery needs an answer since)
+            self._faulted_at = max(self._faulted_at, now)
+            self._fault_noted = True
+        elif not self.fault:
+            self._fault_noted = False
+        overdue = self._query is not None and now - self._query[0] > self.timeout + self._query[1] * 10.0 / self.baud
         if overdue:
             self._query = None
             self._reply = b""
+            self._quiet_since = now
         if self.fault:  # recovered only once the board has answered since, from where it says it is
             if self._answered > self._faulted_at:
                 why = self._resync()
@@ -706,9 +739,9 @@ class SSC32Adapter(SerialAdapter):
             raise ControllerFault(f"SSC-32 on {self.port} does not answer (QP got no reply in {self.timeout} s)")
         qp_due = now >= self._next_query
         sense_due = bool(self.sensors) and not self.fault and now >= self.sensors.ready_at
-        if self._query is None and (qp_due or sense_due):
-            # one write, the board's answers in order: the QP's bytes, then the analog inputs'
-            request = (self._qp_request() if qp_due else b"") + (self.sensors.request if sense_due else b"")
+        if self._query is None and (qp_due or sense_due) and self._quiet(now):
+            # one write, the board's answers in order: the arm's QP, then the sensors' (docs: ssc32_sensors)
+            request = self._qp_request() + (self.sensors.request if sense_due else b"")
             with self._io:
                 try:
                     self.serial.reset_input_buffer()
@@ -716,11 +749,29 @@ class SSC32Adapter(SerialAdapter):
                     raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
             asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
             self._write(request)
-            self._query = (asked, len(self.channels) if qp_due else 0, len(self.sensors.sensors) if sense_due else 0)
-            if qp_due:
-                self._next_query = now + self.query_period
+            size = len(self.channels) + (self.sensors.reply_size if sense_due else 0)
+            self._query = (asked, size, sense_due)
+            self._next_query = now + self.query_period
         if self.fault:
             raise ControllerFault(self.fault)
+
+    def _quiet(self, now: float) -> bool:
+        """Whether the link from the board has been quiet ``QUIET`` since an overdue answer (its
+        bytes read and dropped meanwhile); True when no answer was overdue."""
+        if self._quiet_since is None:
+            return True
+        try:
+            with self._io:
+                waiting = self.serial.in_waiting
+                late = self.serial.read(waiting) if waiting else b""
+        except serial.SerialException as e:
+            raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
+        if late:
+            self._quiet_since = now
+        if now - self._quiet_since < QUIET:
+            return False
+        self._quiet_since = None
+        return True
 
     def _poll_reply(self) -> None:
         if self._query is None:
@@ -732,28 +783,28 @@ class SSC32Adapter(SerialAdapter):
         except serial.SerialException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
         self._reply += chunk
-        asked, size, analog = self._query
-        if len(self._reply) < size + analog:
+        asked, size, sensed = self._query
+        if len(self._reply) < size:
             return
-        reply, volts, self._reply, self._query = self._reply[:size], self._reply[size : size + analog], b"", None
-        if analog:  # the readings published; the scanners' step written, the next read due once it is done
-            step = self.sensors.answered(volts)
-            if step and not self.fault:
-                self._write(step)
-            now = time.monotonic()
-            share = (len(self.sensors.request) + len(step) + analog) / (SENSOR_SHARE * self.baud / 10.0)  # [s]
-            self.sensors.ready_at = max(max(now, self._link_free) + self.sensors.settle_time(), now + share)
-        if not size:
-            return
+        n = len(self.channels)
+        reply, sensors, self._reply, self._query = self._reply[:n], self._reply[n:size], b"", None
         self._answered = time.monotonic()
         self._answer = np.array([10.0 * b for b in reply])
         if self.fault:
-            return  # answering again: the base's recovery follows
+            return  # answering again: the base's recovery follows (the sensors' part is not looked at)
         try:
             self._compare(self._answer, asked, self._answered)
         except ControllerFault:
             self._faulted_at = self._answered
             raise
+        if sensed:  # the board as the adapter has it: the readings published, the scanners stepped (or sent again)
+            self.sensors.answered(sensors)
+            step = self.sensors.aim()
+            if step:
+                self._write(step)
+            now = time.monotonic()
+            share = (len(self.sensors.request) + len(step) + size) / (SENSOR_SHARE * self.baud / 10.0)  # [s]
+            self.sensors.ready_at = max(max(now, self._link_free) + self.sensors.settle_time(), now + share)
 
     def _resync(self) -> str | None:
         """The model put where the board's last QP answer says the arm is; else why not (the
@@ -767,7 +818,10 @@ class SSC32Adapter(SerialAdapter):
                 f"SSC-32 on {self.port}: channel {ch} outputs 0 us (the board was reset or powered off): "
                 "restart the adapter to command the arm's pose again"
             )
-        q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
+        try:
+            q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
+        except ActuatorMapError as e:  # (a linkage's servo where the linkage cannot be)
+            return f"SSC-32 on {self.port} holds the arm where no joint vector is ({e.message})"
         if not self.robot.limits.contains(q, tol=0.02):
             bad = self.robot.limits.violations(q, tol=0.02)[0].message
             return f"SSC-32 on {self.port} holds the arm outside its limits ({bad})"

@@ -4,11 +4,14 @@ servos, publishing each reading as the simulator does (:mod:`.sensor_stream`, do
 
 Per step (the seed's scan: a reading, a turn, a reading):
 
-1. One ``V<pin>...`` read of every wired pin (the guide: a byte each, the voltage times 256/5).
-   It goes with the adapter's ``QP`` when both are due, as one write: it never holds up the arm's
-   stream, and the board answers in order.
-2. A reading of each wired sensor is published: a scanner's at the bearing it has held since its
-   last step; a sensor on the arm's with no bearing.
+1. One ``V<pin>...`` read of every wired pin (the guide: a byte each, the voltage times 256/5),
+   after a ``QP`` of the scanners' channels, always with the adapter's own ``QP`` of the arm's,
+   as one write: it never holds up the arm's stream, and the board answers in order.
+2. If the arm's ``QP`` agrees with the adapter's model (else the adapter faults, as ever) and each
+   scanner's servo is where it was sent (else the board was reset, or a scanner moved: nothing
+   is published and the scanners are sent again), a reading of each wired sensor is published:
+   a scanner's at the bearing it has held since its last step; a sensor on the arm's with no
+   bearing. Nothing is published while the adapter is faulted.
 3. Every scanner turns a step (``#<ch>P<pw>S<SCAN_SPEED>``, one command), and the next read is
    due (``ready_at``, the adapter sets it) once each has arrived, its sensor has measured there
    afresh (a Sharp sensor puts out a measurement at the end of its period, so the one under way
@@ -27,6 +30,7 @@ from collections.abc import Callable
 import numpy as np
 
 from armd.robots import Robot
+from armd.robots.sensors import RangeSensor
 
 from .sensor_stream import Sweep, reading
 
@@ -46,25 +50,32 @@ class WiredSensors:
         self.adapter = adapter
         self.publish = publish
         self.sweeps = {s.name: Sweep(s) for s in self.sensors if s.servo is not None and s.sweep is not None}
+        self.scanners = [s for s in self.sensors if s.name in self.sweeps]
         self.ready_at = 0.0  # [s] when the next read is due (monotonic)
         self.readings = 0  # published so far
+        self.refused = 0  # reads not published: a scanner's servo not where it was sent (a reset board)
 
     def __bool__(self) -> bool:
         return bool(self.sensors)
 
     @property
     def request(self) -> bytes:
-        """The board's read of every wired pin: one byte each, in the sensors' order."""
-        return ("".join(f"V{s.pin}" for s in self.sensors) + "\r").encode()
+        """A ``QP`` of the scanners' channels (each must be where it was sent), then the read of
+        every wired pin: :attr:`reply_size` bytes, in that order."""
+        qp = "".join(f"QP{s.servo.channel}" for s in self.scanners if s.servo is not None)
+        return ((qp + "\r") if qp else "").encode() + ("".join(f"V{s.pin}" for s in self.sensors) + "\r").encode()
+
+    @property
+    def reply_size(self) -> int:
+        return len(self.scanners) + len(self.sensors)
+
+    def _pulse(self, sensor: RangeSensor) -> int:
+        assert sensor.servo is not None
+        return round(float(sensor.servo.to_command(np.array(self.sweeps[sensor.name].bearing))))
 
     def aim(self) -> bytes:
         """The command putting every scanner at its sweep's bearing (b"" if none)."""
-        items = []
-        for s in self.sensors:
-            sweep = self.sweeps.get(s.name)
-            if sweep is not None and s.servo is not None:
-                pulse = round(float(s.servo.to_command(np.array(sweep.bearing))))
-                items.append(f"#{s.servo.channel}P{pulse}S{SCAN_SPEED}")
+        items = [f"#{s.servo.channel}P{self._pulse(s)}S{SCAN_SPEED}" for s in self.scanners if s.servo is not None]
         return ("".join(items) + "\r").encode() if items else b""
 
     def settle_time(self) -> float:
@@ -77,14 +88,20 @@ class WiredSensors:
         # the measurement under way at the arrival began before it: the next one's result, two periods on
         return travel + 2.0 * period + FILTER_SETTLE
 
-    def answered(self, reply: bytes) -> bytes:
-        """The board's bytes for :attr:`request` (all there): each sensor's reading published;
-        returns the scanners' step (the command to write: the next read is due ``settle_time``
-        after it reaches the board)."""
-        for s, count in zip(self.sensors, reply, strict=True):
+    def answered(self, reply: bytes) -> bool:
+        """The board's :attr:`reply_size` bytes for :attr:`request`: if every scanner's servo is
+        where it was sent (``QP``: its pulse / 10, give or take one), each sensor's reading is
+        published and the sweeps turn a step (then write :meth:`aim`); else nothing is published
+        (the board was reset, or someone moved a scanner: write :meth:`aim` again). Whether
+        published."""
+        scan, volts = reply[: len(self.scanners)], reply[len(self.scanners) :]
+        if any(abs(10 * b - self._pulse(s)) > 10 for s, b in zip(self.scanners, scan, strict=True)):
+            self.refused += 1
+            return False
+        for s, count in zip(self.sensors, volts, strict=True):
             msg = reading(s, count * VOLTS_PER_COUNT, self.adapter, self.sweeps.get(s.name))
             self.publish(s.name, json.dumps(msg).encode())
             self.readings += 1
         for sweep in self.sweeps.values():
             sweep.step()
-        return self.aim()
+        return True

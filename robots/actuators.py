@@ -207,8 +207,12 @@ class ActuatorMap:
         self._lin = [k for k in range(len(actuators)) if k not in self.linkages]
         driven = {link.driven for link in self.linkages.values()}
         self._free = [j for j in range(n) if j not in driven]
-        if len(driven) < len(self.linkages) or np.any(self.M[np.ix_(self._lin, sorted(driven))]):
-            raise ValueError("each linkage must drive its own joint, which no linear row may involve")
+        if (
+            len(driven) < len(self.linkages)
+            or any(link.input in driven for link in self.linkages.values())
+            or np.any(self.M[np.ix_(self._lin, sorted(driven))])
+        ):
+            raise ValueError("each linkage must drive its own joint, which no linear row and no linkage's input is")
         self._pinv = np.linalg.pinv(self.M[np.ix_(self._lin, self._free)])
         # |da/dq| over the joints' range, at its largest and smallest: M's for the linear rows
         self.slopes = np.abs(self.M)
@@ -293,7 +297,10 @@ class ActuatorMap:
         if not np.all(np.isfinite(a)):  # (a linkage that cannot be assembled there)
             row, j = np.argwhere(~np.isfinite(np.atleast_2d(a)))[0]
             act = self.actuators[j]
-            raise ActuatorRangeError(act.name, math.nan, act.angle_range, "rad")
+            err = ActuatorRangeError(act.name, math.nan, act.angle_range, "rad")
+            err.message = f"actuator {act.name!r}: its linkage cannot be assembled at these joint positions"
+            err.args = (err.message,)
+            raise err
         self.check_angles(a)
         cmds = np.rint(a * self._gain + self._bias)
         bad = (cmds < self._cmd_lo) | (cmds > self._cmd_hi)

@@ -719,13 +719,15 @@ class _Builder:
         free = [j for j in range(n) if j not in driven]
         if (
             len(driven) < len(linkages)
+            or any(link.input in driven for link in linkages.values())  # (a chain: one's input another's output)
             or np.any(rows[np.ix_(linear, driven)])
             or np.linalg.matrix_rank(rows[np.ix_(linear, free)]) < len(free)
         ):
             raise top.error(
                 "actuators",
                 "with a linkage: each linkage drives a joint of its own, which no other actuator's joints "
-                "name, and the other actuators determine every other joint (the linkage's input among them)",
+                "name and no linkage takes as its input, and the other actuators determine every other joint "
+                "(the linkages' inputs among them)",
             )
         gripper = None
         if top.has("gripper"):
@@ -766,6 +768,11 @@ class _Builder:
                 if not -math.pi <= sweep[0] < sweep[1] <= math.pi:
                     raise t.error("sweep", f"must be [first, last] in [-pi, pi] rad, first < last, got {sweep}")
                 step = t.number("sweep_step", 0.035, positive=True, angle=True)
+                if t.has("pin") != t.has("channel"):
+                    raise t.error(
+                        "pin" if t.has("channel") else "channel",
+                        "a scanner wired to the SSC-32 needs both: its output's pin and its servo's channel",
+                    )
                 out[name] = RangeSensor(
                     name,
                     model_name,

@@ -248,7 +248,11 @@ def adapter_process(args: list[str], tmp_path: Path) -> Iterator[subprocess.Pope
             yield proc
         finally:
             proc.terminate()
-            proc.wait(timeout=10)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=10)
 
 
 def cli_move(robot: str, goal: list[float], router: str, *more: str) -> subprocess.CompletedProcess[str]:

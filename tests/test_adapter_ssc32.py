@@ -19,7 +19,7 @@ import pytest
 import zenoh
 
 from armd import robots
-from armd.adapters.emulators.measure import Motion, ssc32_motion, ssc32_speed_noise
+from armd.adapters.emulators.measure import Motion, peaks, ssc32_motion, ssc32_speed_noise
 from armd.adapters.emulators.measure import ratios as _ratios
 from armd.adapters.emulators.process import EmulatorProcess
 from armd.adapters.emulators.ssc32 import SSC32Emulator
@@ -219,6 +219,14 @@ def test_desk4_linkage_moves_in_one_timed_command(
             m = _moved(arm, emu, since)
             r = ratios(arm, m, 0.02)
             assert m.jumps == 0 and r.velocity <= SPEED_BAR and r.acceleration <= ACCEL_BAR and r.outside <= 1e-9, r
+            # the minor arm moves along curves between the board's breakpoints: sampled every 0.5 ms,
+            # its fastest and its change of speed over a period (the stream's) within the limits too
+            fastest, change = peaks(arm, ssc32_motion(arm, emu, since=since, dense=5e-4), 0.02)
+            noise = ssc32_speed_noise(arm, emu, since)  # (whole microseconds: each piece's speed, that much off)
+            assert np.all(fastest <= arm.limits.velocity * SPEED_BAR), fastest / arm.limits.velocity
+            assert np.all(change <= arm.limits.acceleration * ACCEL_BAR + 2 * noise / 0.02), (
+                change / arm.limits.acceleration
+            )
         finally:
             adapter.close()
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -160,3 +161,55 @@ def test_the_linkage_is_in_the_arms_description() -> None:
     minor = info["actuators"][2]
     assert minor["linkage"]["type"] == "four_bar" and minor["linkage"]["rod"] == ROD
     assert "linkage" not in info["actuators"][1]
+
+
+def test_a_board_holding_the_linkage_where_it_cannot_be_is_a_fault_then_recovers(
+    client: object, service: object, adapter_session: object
+) -> None:
+    """Found by a review: someone puts desk4's minor servo where its linkage cannot be with the
+    major arm where it is. The adapter faults saying so (not stuck on the exception), and
+    recovers once the servo is back."""
+    import serial
+
+    from armd.adapters.emulators.ssc32 import SSC32Emulator
+    from armd.adapters.ssc32 import SSC32Adapter
+    from tests.conftest import wait_for
+
+    arm = robots.load("desk4")
+    with SSC32Emulator() as emu:
+        adapter = SSC32Adapter(adapter_session, arm, emu.port, query_period=0.1)  # type: ignore[arg-type]
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            pulses = arm.actuators.commands(arm.neutral)
+            with serial.Serial(emu.port, 115200, timeout=1) as other:
+                other.write(b"#1P500#2P2500\r")  # the major arm level, the minor servo's horn up: no joint vector
+                wait_for(lambda: adapter.fault is not None, timeout=5, what="the fault")
+                time.sleep(0.5)
+                assert adapter.fault is not None and "no joint vector" in adapter.fault, adapter.fault
+                other.write(f"#1P{pulses[1]}#2P{pulses[2]}\r".encode())
+            wait_for(lambda: adapter.fault is None, timeout=10, what="the recovery")
+            assert np.allclose(adapter.measure().position, arm.neutral, atol=0.01)
+        finally:
+            adapter.close()
+
+
+def test_a_chain_of_linkages_is_refused() -> None:
+    """Found by a review: one linkage's input another's driven joint was read back in the
+    wrong order (the input still 0). Refused: each input is a joint the linear rows give."""
+    from armd.robots.actuators import ActuatorMap
+
+    desk4 = robots.load("desk4").actuators
+    first = FourBar(input=0, driven=1, frame=0.135, lever=0.03, rod=0.135, horn=0.03)
+    with pytest.raises(ValueError, match="linkage"):
+        ActuatorMap(desk4.actuators, desk4.M * [[1], [0], [0]], desk4.b, {1: first, 2: desk4.linkages[2]})
+
+
+def test_adapters_whose_settings_assume_a_linear_map_refuse_a_linkage() -> None:
+    from armd.adapters.base import actuators_of
+    from armd.errors import BadRequest
+    from armd.robots import Servo
+
+    desk4 = robots.load("desk4")
+    assert len(actuators_of(desk4, Servo, "SSC-32")) == 3
+    with pytest.raises(BadRequest, match="minor turns through a four-bar linkage"):
+        actuators_of(desk4, Servo, "Feetech")  # (as if its servos were on a bus)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -76,7 +77,7 @@ def test_the_adapter_scans_and_detect_finds_the_objects(
         (('pin = "B"', 'pin = "J"'), "pin", "A to H"),
         (("channel = 7", "channel = 3"), "channel", "already 'wrist'"),
         (("channel = 7", "channel = 7\nsweep = [-2.0, 2.0]"), None, "outside [500.0, 2500.0] us"),
-        (("channel = 7", "centre_pulse = 1400"), "centre_pulse", "goes with channel"),
+        (("channel = 7", "centre_pulse = 1400"), "channel", "needs both"),
     ],
 )
 def test_wiring_that_cannot_be_is_refused_at_load(
@@ -143,3 +144,38 @@ def test_by_hand_emulator_serve_adapter_and_detect_as_processes(tmp_path: Any) -
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_a_reset_board_or_a_late_answer_publishes_nothing_false(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
+    """Found by a review. A board power-cycled under the adapter: no reading is published from it
+    (its scanners' servos are not where they were sent, its arm's pulses are off: a fault).
+    An answer held past the timeout: its late bytes are not taken for the next one (the adapter
+    waits for the link to go quiet), so it recovers from where the board truly is."""
+    arm = robots.load("insomniac")
+    world = AnalogWorld(arm, objects_of([CAN]), seed=1)
+    got: list[tuple[float, dict[str, Any]]] = []
+    sub = adapter_session.declare_subscriber(
+        "armd/insomniac/sensors/*", lambda s: got.append((time.monotonic(), json.loads(s.payload.to_bytes())))
+    )
+    with SSC32Emulator() as emu:
+        emu.analog = world.volts
+        adapter = SSC32Adapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: len(got) >= 6, timeout=10, what="readings")
+            # an answer held 0.7 s on its way (past the 0.5 s timeout), sensors' bytes and all
+            emu.delay_input(0.7)
+            wait_for(lambda: adapter.fault is not None, timeout=5, what="the timeout's fault")
+            wait_for(lambda: adapter.fault is None, timeout=10, what="the recovery")
+            assert np.allclose(adapter.measure().position, arm.neutral, atol=0.02)
+            client.move("insomniac", [0.3, 1.2, -1.0, -0.2, 0.1], wait=True, wait_timeout=15)
+            # the board powered off and on: nothing published from it
+            emu.power_cycle()
+            cycled = time.monotonic()
+            wait_for(lambda: adapter.fault is not None, timeout=5, what="the reset's fault")
+            time.sleep(0.5)
+            assert not [r for t, r in got if t > cycled + 0.05], "a reading from a board just reset"
+        finally:
+            adapter.close()
+            sub.undeclare()

@@ -6,7 +6,9 @@ the limits: the promise an adapter keeps is that every joint stays within its po
 velocity and acceleration limits at every moment.
 
 - :func:`ssc32_motion`: the joint path the SSC-32 emulator's channels drew, as breakpoints
-  (the board's group moves are piecewise linear in pulses, hence in joints), with its jumps.
+  (the board's group moves are piecewise linear in pulses, hence in joints, unless a linkage
+  curves them: then sampled finely), with its jumps; :func:`peaks`, such a path's fastest speed
+  and largest change of speed over a window.
 - :func:`grbl_motion`, :func:`fitted_peaks`: GRBL's trace of the arm, and its peak speed and
   acceleration fitted over a window (a stepper's whole steps are not its motion).
 - :func:`ratios`: the worst velocity (exact, per linear piece) and acceleration (the change of
@@ -16,6 +18,7 @@ velocity and acceleration limits at every moment.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -65,19 +68,41 @@ class Ratios:
     held: int = 0  # changes counted at the period: their line was held on its way (``ratios(held=True)``)
 
 
-def ssc32_motion(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) -> Motion:
+def ssc32_motion(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf, dense: float = 0.0) -> Motion:
     """The joint path the emulator's output drew for ``robot``'s servo channels, from ``since``
-    [s, the emulator's clock] to now; jumps (zero-length segments that change a pulse) counted."""
+    [s, the emulator's clock] to now; jumps (zero-length segments that change a pulse) counted.
+
+    Breakpoints: the board's pieces are linear in pulses, hence in joints, unless a servo turns
+    its joint through a linkage (desk4's minor): then a piece is curved in joints, and ``dense``
+    [s] samples every piece at least that finely (for :func:`peaks`)."""
     servos = [a for a in robot.actuators.actuators if isinstance(a, Servo)]
     segs = {a.channel: emulator.segments(a.channel) for a in servos}
     edges = sorted({t for ss in segs.values() for s in ss for t in (s[0], s[1]) if t >= since})
     jumps = sum(1 for ss in segs.values() for s in ss if s[0] == s[1] and s[2] != s[3] and s[0] >= since)
     if not edges:
         return Motion(np.zeros(0), np.zeros((0, robot.nq)), jumps)
+    if dense > 0.0:
+        fine = [np.linspace(a, b, max(2, int(np.ceil((b - a) / dense)) + 1))[:-1] for a, b in itertools.pairwise(edges)]
+        edges = sorted({*edges, *(float(t) for f in fine for t in f)})
     times = np.array(edges, dtype=float)
     pulses = np.column_stack([_pulse_at(segs[a.channel], times) for a in servos])
     q = robot.actuators.joints_from_commands(pulses, tol=np.inf)
     return Motion(times, q, jumps)
+
+
+def peaks(robot: Robot, motion: Motion, window: float) -> tuple[FloatArray, FloatArray]:
+    """Per joint, the fastest speed [rad/s] of a finely sampled ``motion`` (:func:`ssc32_motion`
+    with ``dense``) and its largest change of speed over any ``window`` [s] (a stream's period)
+    divided by the window [rad/s^2]: the acceleration a servo behind a linkage has along the
+    board's curved pieces, and at their joins, at the stream's own time scale."""
+    t, q = motion.times, motion.position
+    keep = np.diff(t) > 1e-9
+    mid = (t[:-1] + t[1:])[keep] / 2.0
+    v = (np.diff(q, axis=0)[keep]) / np.diff(t)[keep][:, None]
+    fastest = np.max(np.abs(v), axis=0) if len(v) else np.zeros(robot.nq)
+    before = np.clip(np.searchsorted(mid, mid - window, side="right") - 1, 0, None)
+    change = np.max(np.abs(v - v[before]), axis=0) / window if len(v) else np.zeros(robot.nq)
+    return fastest, change
 
 
 def ssc32_speed_noise(robot: Robot, emulator: SSC32Emulator, since: float = -np.inf) -> FloatArray:
