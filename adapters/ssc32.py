@@ -760,29 +760,26 @@ class SSC32Adapter(SerialAdapter):
         bytes read and dropped meanwhile); True when no answer was overdue."""
         if self._quiet_since is None:
             return True
-        try:
-            with self._io:
-                waiting = self.serial.in_waiting
-                late = self.serial.read(waiting) if waiting else b""
-        except serial.SerialException as e:
-            raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
-        if late:
+        if self._read_waiting():  # (late: dropped)
             self._quiet_since = now
         if now - self._quiet_since < QUIET:
             return False
         self._quiet_since = None
         return True
 
-    def _poll_reply(self) -> None:
-        if self._query is None:
-            return
+    def _read_waiting(self) -> bytes:
+        """Whatever the board has sent that is not read yet (never waiting)."""
         try:
             with self._io:
                 waiting = self.serial.in_waiting
-                chunk = self.serial.read(waiting) if waiting else b""
+                return bytes(self.serial.read(waiting)) if waiting else b""
         except serial.SerialException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
-        self._reply += chunk
+
+    def _poll_reply(self) -> None:
+        if self._query is None:
+            return
+        self._reply += self._read_waiting()
         asked, size, sensed = self._query
         if len(self._reply) < size:
             return

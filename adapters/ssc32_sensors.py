@@ -36,7 +36,7 @@ from .sensor_stream import Sweep, reading
 
 SCAN_SPEED = 1000  # [us/s] a scanning servo's step (2 degrees: 22 us in 22 ms)
 # (a step, then: 22 ms + 2 x 48 ms + 8 ms, and the control loop's 20 ms: about 6 readings a second,
-# a sweep of 2 rad in 2-degree steps in 9.4 s, measured)
+# a sweep of 2 rad in 2-degree steps in 9.5 s, measured)
 MEASURE_SLACK = 0.25  # a Sharp sensor's period may run this much longer than typical (38.3 +- 9.6 ms)
 FILTER_SETTLE = 0.008  # [s] the board's analog inputs settle within 8 ms of a change (the guide)
 VOLTS_PER_COUNT = 5.0 / 256.0  # the guide: "multiply by 5/256"
