@@ -53,10 +53,10 @@ the state it reports says ``source: "commanded"`` (hobby servos report no positi
 The gripper, a separate channel, opens and closes on ``<prefix>/<robot>/gripper``.
 
 Range sensors wired to the board (robot.toml ``[[sensors]] pin``, a scanner's ``channel``) are
-read on its analog inputs between the stream's lines, with the ``QP`` when both are due, their
-scanners stepped through their sweeps, and each reading published on
-``<prefix>/<robot>/sensors/<name>`` (:mod:`.ssc32_sensors`; not while the adapter is faulted), in
-at most ``SENSOR_SHARE`` of the link (a slow link scans slower).
+read on its analog inputs between the stream's lines, each read after the arm's ``QP`` and the
+scanners', their scanners stepped through their sweeps, and each reading published on
+``<prefix>/<robot>/sensors/<name>`` (:mod:`.ssc32_sensors`) only if the board is as the adapter
+has it (never while faulted), in at most ``SENSOR_SHARE`` of the link (a slow link scans slower).
 """
 
 from __future__ import annotations
