@@ -13,6 +13,8 @@ from armd import robots
 from armd.errors import BadRequest, UnknownRobot
 from armd.robots import Robot
 
+log = logging.getLogger(__name__)
+
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 LOG_LEVELS = ("debug", "info", "warning", "error")
 
@@ -129,6 +131,29 @@ def wait_for_signal(stop: threading.Event | None = None) -> None:
     stop = stop or signals()
     while not stop.is_set():
         stop.wait(0.5)
+
+
+CLOSE_WAIT = 5.0  # [s] a daemon stopping waits this long for its Zenoh session to close, then exits anyway
+
+
+def close_session(session: Any, wait: float = CLOSE_WAIT) -> None:
+    """Close a daemon's Zenoh session, but wait at most ``wait`` seconds: Zenoh's close can
+    block on a link it cannot tear down (eclipse-zenoh/zenoh#2675), and a SIGTERM must stop the
+    daemon. Exiting closes its sockets anyway: its peers see the link drop (an adapter's token
+    with it)."""
+    done = threading.Event()
+
+    def close() -> None:
+        try:
+            session.close()
+        except Exception:  # (closed already, or Zenoh's own timeout)
+            log.debug("closing the Zenoh session failed", exc_info=True)
+        finally:
+            done.set()
+
+    threading.Thread(target=close, name="zenoh-close", daemon=True).start()
+    if not done.wait(wait):
+        log.warning("the Zenoh session did not close in %.0f s: exiting anyway", wait)
 
 
 def open_session(conf: Any) -> Any:

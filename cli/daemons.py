@@ -14,6 +14,7 @@ from armd.robots import Robot
 from .common import (
     BUS_SERVOS,
     all_robots,
+    close_session,
     network_args,
     open_bus,
     open_session,
@@ -65,7 +66,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         for sim in sims:
             sim.close()
         service.close()
-        session.close()
+        close_session(session)
     return 0
 
 
@@ -114,7 +115,7 @@ def cmd_adapter(args: argparse.Namespace) -> int:
         wait_for_signal(stop)
     finally:
         adapter.close()
-        session.close()
+        close_session(session)
     return 0
 
 
@@ -235,7 +236,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     try:
         wait_for_signal(stop)
     finally:
-        session.close()
+        close_session(session)
     return 0
 
 
