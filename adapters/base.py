@@ -5,9 +5,14 @@ its arm, takes trajectories from ``<prefix>/<robot>/trajectory`` (each re-checke
 every limit and actuator range: one bad sample rejects the whole trajectory, and nothing
 of it reaches the wire), lets a newer trajectory replace the running one, publishes
 ``<prefix>/<robot>/state`` at ``state_hz`` and ``<prefix>/<robot>/events`` (accepted,
-started, done, rejected, aborted, fault). A controller that stops answering is a fault:
-the adapter stops executing, reports it, and withdraws its token (so ``move`` answers
-``no_adapter``) until it answers again.
+started, done, rejected, aborted, fault, recovered). A controller that stops answering, or
+reports an error, is a fault: said once (the event ``fault``; the same reason again is only
+counted, and ``recovered`` says how many checks failed and for how long), the token withdrawn
+(so ``move`` answers ``no_adapter``) until the controller is well again, the state published
+on at its rate (with the fault in it), and an arm in motion braked to rest as a ``stop`` brakes
+it, from the adapter's own state (:meth:`Adapter.estimate`: the last it knew, carried on), the
+stop running under the fault: never held where it was last seen, which a joint at speed has
+passed already and would run back to.
 
 A trajectory is checked by its motion (:mod:`clients.trajectory_message`), then here: its id
 runs at most once, its first sample is near where the arm is, and the arm's position must be
@@ -19,9 +24,11 @@ every limit (:meth:`stop_command`), whatever the service believed. The adapter n
 service to run what it accepted: if the service dies mid-move, the move is finished, and the
 estop still works through the router.
 
-A subclass implements :meth:`execute` (send what is due at time ``t`` of a trajectory),
-:meth:`hold` (stop now), :meth:`measure` (the arm's state, as the hardware reports it or as
-last commanded) and :meth:`check` (is the controller alive?); it may override
+A subclass implements :meth:`execute` (send what is due at time ``t`` of a trajectory; a
+``stop`` also while the controller is faulty), :meth:`hold` (bring the arm to rest now with no
+plan, never back: the fallback when a stop cannot be planned), :meth:`measure` (the arm's
+state, as the hardware reports it or as last commanded) and :meth:`check` (is the controller
+well?); it may override :meth:`estimate` (the state with nothing asked of the controller),
 :meth:`stop_command` (how to stop from here) and :meth:`unlock`.
 """
 
@@ -158,6 +165,8 @@ class Adapter(ABC):
         self._new = False
         self._finished = True
         self.fault: str | None = None
+        self._fault_count = 0  # faulty checks (and errors) since the fault began
+        self._fault_since = 0.0  # [s] when it began (monotonic)
         self.homed = True  # whether the arm's position is known (a subclass that can lose it says so)
         self.position_source = "commanded"  # or "measured": what the published state is
         self._seen: OrderedDict[str, None] = OrderedDict()  # ids accepted, newest last
@@ -183,7 +192,8 @@ class Adapter(ABC):
 
     @abstractmethod
     def hold(self) -> None:
-        """Stop the arm where it is, now."""
+        """Bring the arm to rest now, with no plan, never back (the fallback when a stop cannot
+        be planned)."""
 
     @abstractmethod
     def measure(self) -> JointState:
@@ -209,12 +219,15 @@ class Adapter(ABC):
     def stop_command(self, ident: str) -> Command:
         """The stop to run now: jerk-limited, each joint braking as hard as its limits allow,
         from the adapter's own state (a state a hair outside a limit is brought inside first:
-        a stop is never refused), sampled at the running trajectory's rate."""
+        a stop is never refused), sampled at the running trajectory's rate. With the controller
+        faulty, from :meth:`estimate` (what the adapter last knew, carried on: nothing asked of
+        a controller that may not answer)."""
         with self._lock:
             rate = self._cmd.rate_hz if self._cmd is not None else None
         for _ in range(3):  # planned from a state that is still the arm's: again if planning took a while
             asked = time.monotonic()
-            traj = planning.plan_stop(self.robot, self.measure(), rate_hz=rate, clamp=True)
+            state = self.estimate() if self.fault else self.measure()
+            traj = planning.plan_stop(self.robot, state, rate_hz=rate, clamp=True)
             if time.monotonic() - asked < 0.005:
                 break
         vel, acc = motion(traj.position, 1.0 / traj.rate_hz)
@@ -325,11 +338,12 @@ class Adapter(ABC):
                 state=here.to_dict(),
             )
 
-    def _install(self, cmd: Command) -> None:
-        """Make ``cmd`` the running trajectory (the control loop starts it on its next pass)."""
+    def _install(self, cmd: Command, reason: str | None = None) -> None:
+        """Make ``cmd`` the running trajectory (the control loop starts it on its next pass);
+        the one it replaces is aborted, for ``reason`` (default: replaced)."""
         with self._lock:
             if self._cmd is not None and not self._finished:
-                self.event("aborted", id=self._cmd.id, reason=f"replaced by {cmd.id}")
+                self.event("aborted", id=self._cmd.id, reason=reason or f"replaced by {cmd.id}")
             # said before the loop can see it (under the lock): "accepted" always precedes "started"
             self.event("accepted", id=cmd.id, trajectory=cmd.kind, duration=cmd.duration)
             self._cmd = cmd
@@ -352,11 +366,12 @@ class Adapter(ABC):
         self.emergency_stop(ident, reason)
 
     def emergency_stop(self, ident: str, reason: str) -> None:
-        """Brake from the adapter's own state at once (:meth:`stop_command`); never refused.
-        With the controller faulty (or the stop impossible to plan), hold it instead."""
+        """Brake from the adapter's own state at once (:meth:`stop_command`); never refused, the
+        controller faulty or not (a stop runs under a fault). If the stop cannot be planned,
+        :meth:`hold`."""
         log.info("%s: %s (%s)", self.robot.name, reason, ident)
         try:
-            cmd = None if self.fault else self.stop_command(ident)
+            cmd: Command | None = self.stop_command(ident)
         except Exception as e:  # a stop must happen whatever: hold
             log.exception("%s: the stop could not be planned: holding", self.robot.name)
             self.event("fault", reason=f"stop not planned ({type(e).__name__}: {e}): held")
@@ -375,7 +390,7 @@ class Adapter(ABC):
             return
         with self._lock:
             self._remember(ident)
-        self._install(cmd)
+        self._install(cmd, reason)
 
     def _on_unlock(self, sample: zenoh.Sample) -> None:
         try:
@@ -409,7 +424,8 @@ class Adapter(ABC):
                         self._recovered()
                 if unlock is not None:
                     self._do_unlock(unlock)
-                if cmd is not None and not finished and not self.fault:
+                # (a stop runs under a fault too: the one that brakes the arm after it)
+                if cmd is not None and not finished and (not self.fault or cmd.kind == "stop"):
                     if first:
                         self.event("started", id=cmd.id)
                     if self.execute(cmd, now - t0, first):
@@ -421,8 +437,10 @@ class Adapter(ABC):
             except ControllerFault as e:
                 self._faulted(e.message, cmd)
             except Exception as e:  # a bug must not leave the arm moving unattended
-                log.exception("%s adapter error", self.kind)
-                self._faulted(f"adapter error: {type(e).__name__}: {e}", cmd)
+                reason = f"adapter error: {type(e).__name__}: {e}"
+                if reason != self.fault:  # (its traceback once, not at every pass)
+                    log.exception("%s adapter error", self.kind)
+                self._faulted(reason, cmd)
             if now >= next_state:
                 next_state = now + self.state_period
                 if self._refresh():
@@ -446,29 +464,63 @@ class Adapter(ABC):
         self.event("unlocked", how=how)
 
     def _faulted(self, reason: str, cmd: Command | None) -> None:
+        """The controller is faulty for ``reason``: said once (the event ``fault``, a line in
+        the log; the same reason again is only counted), the token withdrawn (``move`` answers
+        ``no_adapter``), and an arm in motion braked to rest from the adapter's own state, as
+        ``stop`` does (:meth:`_brake`): never held where it was last seen, which a joint at
+        speed has passed already."""
+        self._fault_count += 1
         if self.fault == reason:
             return
+        now = time.monotonic()
         first = self.fault is None
+        if first:
+            self._fault_since, self._fault_count = now, 1
         self.fault = reason
         log.error("%s: %s", self.robot.name, reason)
         with self._lock:
             running = self._cmd is not None and not self._finished
-            self._finished = True
-        if running and cmd is not None:
-            self.event("aborted", id=cmd.id, reason=reason)
-        self.event("fault", reason=reason)
+        self.event("fault", reason=reason, count=self._fault_count)
         if first and self._token is not None:  # no longer able to drive: move must say no_adapter
             self._token.undeclare()
             self._token = None
+        if running:  # (an arm at rest: nothing to brake; the controller holds it)
+            self._brake(reason)
+
+    def _brake(self, reason: str) -> None:
+        """The running trajectory (if any) replaced by a stop planned from the adapter's own
+        state, run under the fault; :meth:`hold` if it cannot be planned."""
+        ident = f"fault-{uuid.uuid4().hex[:12]}"
         try:
-            self.hold()
-        except Exception:  # the controller may be gone
-            log.debug("hold failed", exc_info=True)
+            stop = self.stop_command(ident)
+        except Exception as e:  # (a stop that cannot be planned: hold, and say so)
+            log.exception("%s: the stop after a fault could not be planned: holding", self.robot.name)
+            with self._lock:
+                running = self._cmd is not None and not self._finished
+                self._finished = True
+            if running and self._cmd is not None:
+                self.event("aborted", id=self._cmd.id, reason=reason)
+            self.event("fault", reason=f"stop not planned ({type(e).__name__}: {e}): held", count=self._fault_count)
+            try:
+                self.hold()
+            except Exception:  # the controller may be gone
+                log.debug("hold failed", exc_info=True)
+            return
+        with self._lock:
+            self._remember(ident)
+        self._install(stop, reason)
 
     def _recovered(self) -> None:
-        log.info("%s: controller answers again", self.robot.name)
+        now = time.monotonic()
+        log.info(
+            "%s: the controller answers again (%d faulty checks in %.1f s)",
+            self.robot.name,
+            self._fault_count,
+            now - self._fault_since,
+        )
         self.fault = None
-        self.event("recovered")
+        self.event("recovered", count=self._fault_count, duration=now - self._fault_since)
+        self._fault_count = 0
         if self._token is None:
             self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
 
@@ -481,10 +533,13 @@ class Adapter(ABC):
             cmd, finished = self._cmd, self._finished
         try:
             s = self.measure() if ask else self.estimate()
-        except Exception:  # the controller may be gone: the fault path reports it
+        except Exception:  # the controller may be gone: the fault path reports it, the state goes on
             log.debug("measure failed", exc_info=True)
-            return False
-        self._moving = cmd is not None and not finished and not self.fault
+            try:
+                s = self.estimate()
+            except Exception:
+                return False
+        self._moving = cmd is not None and not finished
         self._latest = s if self._moving else JointState.at_rest(s.position)
         return True
 

@@ -26,18 +26,42 @@ tolerances):
   goal within ``settle`` of the trajectory's end: the trajectory is aborted and the arm stopped
   from its measured state (:meth:`Adapter.emergency_stop`: jerk-limited, within every limit),
   the event naming the joint, its error and the tolerance;
-- a servo's alarm (overload, overheat, voltage): aborted, stopped, and a fault naming the
-  servo and the alarm, until its alarm clears (a servo that latches it, and turns its torque
-  off, waits for an operator: ``armd unlock ROBOT --assume-rest``, :meth:`unlock`);
-- a read that fails (a reply lost, garbled, late) is skipped: the goals go on; more than
-  ``max_lost`` in a row is a fault naming the servos that did not answer (the token withdrawn:
-  ``move`` answers ``no_adapter``), recovered when they answer again.
+- a fault (below) aborts the trajectory; the arm is braked to rest as a ``stop`` brakes it,
+  from the adapter's :meth:`~BusServoAdapter.estimate` (the last reading carried on to now at
+  the faster of the speed measured and the speed sent, never past the goal sent: a stop planned
+  from it never asks a joint back), the stop running under the fault; each servo that still
+  has its torque brakes within its own acceleration limit.
+
+Faults (:meth:`~BusServoAdapter._diagnose`, at every check, 10 a second, and at once when a
+cycle sees an alarm or too many lost replies), each said once (the same reason again is only
+counted), the state published on at its rate meanwhile:
+
+- a servo's alarm (overload, overheat, voltage), naming the servo and the alarm;
+- a servo that let go (its torque off, as an STS does on an overheat or an overload, a
+  Dynamixel on any hardware error): it waits for an operator (``armd unlock ROBOT
+  --assume-rest``, :meth:`unlock`), never set going again by the adapter;
+- a servo reset (its acceleration register back to 0, its torque off: a power cycle, a cable
+  plugged back): a new controller, set up again as at start-up (:meth:`_configure`: written and
+  read back) before ``recovered``, at the check after the fault was said; moves are refused
+  meanwhile;
+- a read that fails (a reply lost, garbled, late) is tried again at once if it failed fast
+  (noise), else skipped: the goals go on; more than ``max_lost`` in a row is a fault: each
+  servo the reads missed is pinged (a sync read broken off at a silent servo loses the replies
+  after it), and those that do not answer are named (``servo id 3 (elbow_flex) does not
+  answer``) and left out of the reads until they answer a ping again.
+
+How long a reply may take: the SDKs' timeouts assume an FTDI chip's factory latency (16 ms,
+counted twice); here the link's own, its latency timer's where the system shows one, and at
+least what the pings at start measure (:attr:`SdkBus.latency`), plus ``LINK_MARGIN``: a silent
+servo costs a few milliseconds a read. A latency above ``SLOW_LINK`` is said at start, with how
+to lower it.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 import threading
 import time
 from abc import ABC, abstractmethod
@@ -70,6 +94,11 @@ GRIPPER_SPEED = 2000  # [counts/s] the gripper's
 READ_WAIT = 0.001  # [s] the longest one read of the port blocks (the SDKs' packet timeouts still apply)
 START_SLACK = 0.02  # [rad] how far outside its limits the arm may be found at start (as the SSC-32's)
 FRESH = 0.002  # [s] a reading this recent answers measure() without another read
+USB_FRAME = 0.001  # [s] a USB link's latency where nothing says more (a full-speed frame)
+LINK_MARGIN = 0.005  # [s] the slack a reply has beyond its bytes' time and twice the link's latency
+MAX_LATENCY = 0.05  # [s] the most the pings' measure of the link's latency is taken to be
+SLOW_LINK = 0.004  # [s] a latency above this is said at start, with how to lower it
+RETRY_WITHIN = 0.003  # [s] a sync read that lost a reply this fast (noise, not a silent servo) is tried again at once
 
 
 @dataclass(frozen=True)
@@ -86,11 +115,21 @@ class Reading:
     alarms: tuple[str, ...] = ()
 
 
+@dataclass(frozen=True)
+class Settings:
+    """What a servo's RAM holds of the adapter's settings: its ``torque`` on or off, and its
+    ``acceleration`` register [its units; 0: none, as at power-up]."""
+
+    torque: bool
+    acceleration: int
+
+
 class Bus(ABC):
     """One vendor's bus, through its SDK: what the adapter asks of it."""
 
     name = "bus"
     port = ""
+    latency = 0.0  # [s] how long the link holds a reply beyond its bytes' time on the wire
 
     @abstractmethod
     def ping(self, ident: int) -> int | None:
@@ -106,8 +145,14 @@ class Bus(ABC):
         in one sync write (no reply)."""
 
     @abstractmethod
-    def set_limits(self, ident: int, acceleration: float) -> None:
-        """The servo's own acceleration limit [counts/s^2], rounded down to its units (at least one)."""
+    def set_limits(self, ident: int, acceleration: float) -> int:
+        """The servo's own acceleration limit [counts/s^2], rounded down to its units (at least
+        one); the register's value written [its units]."""
+
+    @abstractmethod
+    def read_settings(self, ids: list[int]) -> dict[int, Settings]:
+        """What each servo's RAM holds of what the adapter set (its torque, its acceleration
+        register), in sync reads; a servo whose reply was lost is missing."""
 
     @abstractmethod
     def set_torque(self, ident: int, on: bool) -> None:
@@ -132,6 +177,8 @@ class SdkBus(Bus):
     protocol: float = 0
     torque_address = 0
     write_errors = 0  # the status's error bits that say a write was not taken (Feetech's are alarms)
+    sync_read_extra: tuple[Any, ...] = ()  # (more arguments of the SDK's syncReadTx)
+    ping_bytes = 12  # a ping and its answer, both ways [bytes]
 
     def __init__(self, port: str, baud: int) -> None:
         import importlib
@@ -161,6 +208,19 @@ class SdkBus(Bus):
         # control loop runs at real-time priority: a spinning one starves everything else on its core)
         self.handler.ser.timeout = READ_WAIT
         self.packets = sdk.PacketHandler(self.protocol)
+        # how long a reply may take: the SDKs assume an FTDI chip's factory latency (16 ms, twice);
+        # here the link's own, its latency timer's where the system has one, else a USB frame's,
+        # and what the pings measure (a silent servo then costs a few ms a read, not 34)
+        timer = usb_latency_timer(port)
+        self.latency = timer if timer is not None else USB_FRAME  # [s]
+        self.latency_timer = timer
+        self.handler.setPacketTimeout = self._packet_timeout
+
+    def _packet_timeout(self, packet_length: int) -> None:
+        """The SDK's ``setPacketTimeout``, with the link's latency (:attr:`latency`) for its 16 ms."""
+        h = self.handler
+        h.packet_start_time = h.getCurrentTime()
+        h.packet_timeout = h.tx_time_per_byte * packet_length + 1000.0 * (2.0 * self.latency + LINK_MARGIN)  # [ms]
 
     def _fresh(self) -> None:
         """Stale input dropped (the SDKs' ``clearPort`` waits for the output instead: a reply that
@@ -171,9 +231,16 @@ class SdkBus(Bus):
         return bool(result == self.sdk.COMM_SUCCESS)
 
     def ping(self, ident: int) -> int | None:
+        """The servo's model number, or None; an answer's round trip, less the wire's time,
+        raises :attr:`latency` (up to ``MAX_LATENCY``) if it took longer."""
         self._fresh()
+        asked = time.monotonic()
         model, result, _ = self.packets.ping(self.handler, ident)
-        return int(model) if self._ok(result) else None
+        if not self._ok(result):
+            return None
+        took = time.monotonic() - asked - self.handler.tx_time_per_byte * self.ping_bytes / 1000.0
+        self.latency = min(max(self.latency, took), MAX_LATENCY)
+        return int(model)
 
     def _write(self, ident: int, address: int, size: int, value: int) -> None:
         """A write that must be taken (its status: no error), else :class:`ControllerFault`."""
@@ -184,6 +251,22 @@ class SdkBus(Bus):
             why = self.packets.getTxRxResult(result) if not self._ok(result) else self.packets.getRxPacketError(error)
             raise ControllerFault(f"servo id {ident} on {self.port} did not take a write to address {address}: {why}")
 
+    def _sync_read(self, address: int, size: int, ids: list[int]) -> dict[int, tuple[list[int], int]]:
+        """One sync read of ``size`` bytes at ``address``: each servo's data and status error
+        byte, read reply by reply in the order asked (the SDK's ``readRx``, which skips another
+        servo's reply: one lost loses those after it too)."""
+        self._fresh()
+        result = self.packets.syncReadTx(self.handler, address, size, list(ids), len(ids), *self.sync_read_extra)
+        out: dict[int, tuple[list[int], int]] = {}
+        if not self._ok(result):
+            return out
+        for i in ids:
+            data, result, error = self.packets.readRx(self.handler, i, size)
+            if not self._ok(result) or len(data) < size:
+                break
+            out[i] = (list(data), int(error))
+        return out
+
     def set_torque(self, ident: int, on: bool) -> None:
         self._write(ident, self.torque_address, 1, 1 if on else 0)
 
@@ -192,6 +275,16 @@ class SdkBus(Bus):
             self.handler.closePort()
         except Exception:  # (already closed)
             log.debug("close failed", exc_info=True)
+
+
+def usb_latency_timer(port: str) -> float | None:
+    """[s] the latency timer of the USB-serial chip behind ``port`` (an FTDI's, which holds what
+    the servos send until it fills or the timer runs out), where the system shows one; else None."""
+    name = os.path.basename(os.path.realpath(port))
+    try:
+        return int((Path("/sys/class/tty") / name / "device" / "latency_timer").read_text()) / 1000.0
+    except (OSError, ValueError):
+        return None
 
 
 def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
@@ -210,12 +303,25 @@ def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
             "check its cable, its power and its id (the arm's robot.toml: [[actuators]] id)"
         )
     log.info(
-        "%s: %d servos answer on %s (models %s)",
+        "%s: %d servos answer on %s (models %s; replies within %.1f ms)",
         robot.name,
         len(wanted),
         bus.port,
         ", ".join(f"{i}: {m}" for i, m in models.items()),
+        1000.0 * bus.latency,
     )
+    if bus.latency > SLOW_LINK:
+        name = os.path.basename(os.path.realpath(bus.port))
+        log.warning(
+            "%s: replies take %.0f ms to come back from %s (a USB-serial chip's latency timer? an FTDI's is "
+            "16 ms from the factory): every bus cycle waits for it, the arm is followed less closely. Set it "
+            "to 1 ms: echo 1 | sudo tee /sys/bus/usb-serial/devices/%s/latency_timer (for good: a udev rule, "
+            "docs/adapters.md)",
+            robot.name,
+            1000.0 * bus.latency,
+            bus.port,
+            name,
+        )
 
 
 class BusServoAdapter(Adapter):
@@ -246,13 +352,17 @@ class BusServoAdapter(Adapter):
         self.settle = settle
         self.ids = [s.id for s in self.servos]
         self.gripper_id = robot.gripper.channel if robot.gripper is not None else None
-        self._io = threading.Lock()  # the bus: the control loop, and the gripper's requests
+        self._names = {s.id: s.name for s in self.servos}
+        self._io = threading.RLock()  # the bus: the control loop, and the gripper's requests
         self._reading: dict[int, Reading] = {}
         self._read_at = -math.inf
         self._lost = 0
-        self._missing: list[int] = []
+        self._missing: list[int] = []  # the servos the last failed read missed
+        self._silent: list[int] = []  # servos that answer no ping (a cable off): not read until they do
+        self._accel_units: dict[int, int] = {}  # each servo's acceleration register, as the adapter set it
         self._position = np.array(robot.neutral, dtype=float)
         self._velocity = np.zeros(robot.nq)
+        self._goal = self._position.copy()  # [rad] the goals last sent
         self._alarm: str | None = None
         self._cycles = 0  # bus cycles (sync write and read) done
         self.tracking = np.zeros(robot.nq)  # [rad] per joint, the worst error of the running (or last) trajectory
@@ -267,15 +377,15 @@ class BusServoAdapter(Adapter):
         super().__init__(session, robot, prefix=prefix, state_hz=state_hz, check_period=0.1)
         self.position_source = "measured"
         try:
-            self._start_up(amap)
+            self._start_up()
         except BaseException:
             bus.close()
             raise
         self.activate()
 
-    # -- start-up -------------------------------------------------------------------------
+    # -- start-up, and a power cycle ----------------------------------------------------------
 
-    def _start_up(self, amap: object) -> None:
+    def _start_up(self) -> None:
         ping_all(self.bus, self.robot, self.servos)
         if not self._read():
             raise ControllerFault(f"the servos on {self.bus.port} answer a ping but not a read")
@@ -287,46 +397,130 @@ class BusServoAdapter(Adapter):
                 "the arm inside them by hand and start again (a servo that reads so where the arm is inside "
                 "needs calibrating: armd calibrate)"
             )
-        accel = self.robot.actuators.rate_bounds(self.robot.limits.velocity, self._amax)[1]
-        for k, s in enumerate(self.servos):  # (a servo moved by several joints: its bound over them all)
-            self.bus.set_limits(s.id, float(accel[k]) * s.counts_per_rad)
-        here = {i: r.position for i, r in self._reading.items() if i in self.ids}
-        self.bus.write_goals(here, self._speeds(np.zeros(self.robot.nq)))  # (enabled, a servo drives to its goal)
-        for i in self.ids:
-            self.bus.set_torque(i, True)
+        self._configure()
+
+    def _configure(self) -> None:
+        """Every servo set up as the adapter relies on, and read back (else :class:`ControllerFault`
+        naming the servo): its acceleration limit its joint's (rounded down), its goal where it is,
+        then its torque on. Nothing moves. At start-up, after an unlock, and after a power cycle
+        (a servo that lost its RAM is a new controller)."""
+        accel = self.robot.actuators.rate_bounds(self._vmax, self._amax)[1]
+        with self._io:
+            for k, s in enumerate(self.servos):  # (a servo moved by several joints: its bound over them all)
+                self._accel_units[s.id] = self.bus.set_limits(s.id, float(accel[k]) * s.counts_per_rad)
+            got = self.bus.read(self.ids)
+            missing = [i for i in self.ids if i not in got]
+            if missing:
+                raise ControllerFault(f"servo id {self._named(missing)} did not answer a read on {self.bus.port}")
+            # (enabled, a servo drives to its goal: first where it is)
+            self.bus.write_goals({i: got[i].position for i in self.ids}, self._speeds(np.zeros(self.robot.nq)))
+            for i in self.ids:
+                self.bus.set_torque(i, True)
+            settings = self.bus.read_settings(self.ids)
+        unset = [
+            f"{self._named([i])}: " + ("no answer" if st is None else "torque off" if not st.torque else "acceleration")
+            for i in self.ids
+            for st in [settings.get(i)]
+            if st is None or not st.torque or st.acceleration != self._accel_units[i]
+        ]
+        if unset:
+            raise ControllerFault(f"servo id {'; '.join(unset)} not as set on {self.bus.port}")
+        self._silent, self._lost = [], 0
+        self._read()
+        self._goal = self._position.copy()
+        self._v_sent = np.zeros(self.robot.nq)
+
+    def _set_up_again(self) -> None:
+        """After a power cycle (said as a fault already): whatever ran ends (the servos let go,
+        a stop planned before means nothing now), every servo set up again where it is."""
+        with self._lock:
+            if self._cmd is not None and not self._finished:
+                self.event("aborted", id=self._cmd.id, reason="the servos were reset: set up again where they are")
+            self._finished = True
+        self._configure()
+        self.homed = True
+        log.info("%s: the servos on %s are set up again (read back)", self.robot.name, self.bus.port)
 
     # -- the bus ------------------------------------------------------------------------------
 
+    def _named(self, ids: list[int]) -> str:
+        return ", ".join(f"{i} ({self._names.get(i, 'gripper')})" for i in ids)
+
     def _read(self) -> bool:
-        """One sync read; the joints' state from it. False if a reply was lost."""
-        wanted = self.ids
+        """One sync read of every servo that answers (a reply lost: read again at once, if the
+        first took less than ``RETRY_WITHIN``); the joints' state from it. False if a reply was
+        lost. Never raises: what a run of lost reads means is :meth:`_diagnose`'s to say."""
+        wanted = [i for i in self.ids if i not in self._silent]
         with self._io:
+            t0 = time.monotonic()
             got = self.bus.read(wanted)
+            if len(got) < len(wanted) and time.monotonic() - t0 < RETRY_WITHIN:
+                got = self.bus.read(wanted)  # (noise on the wire: once more, within the cycle)
         now = time.monotonic()
         missing = [i for i in wanted if i not in got]
         if missing:
             self._lost += 1
             self._missing = missing
-            if self._lost > self.max_lost:
-                raise ControllerFault(
-                    f"servo id {', '.join(map(str, missing))} did not answer {self._lost} reads in a row "
-                    f"on {self.bus.port}"
-                )
             return False
         self._lost = 0
-        self._reading = got
+        self._reading.update(got)
         self._read_at = now
-        counts = np.array([got[i].position for i in wanted], dtype=float)
-        speeds = np.array([got[i].speed for i in wanted], dtype=float)
+        counts = np.array([self._reading[i].position for i in self.ids], dtype=float)
+        # (a silent servo: where it was last read, still)
+        speeds = np.array([0.0 if i in self._silent else self._reading[i].speed for i in self.ids])
         amap = self.robot.actuators
         self._position = amap.joints_from_commands(counts, tol=np.inf)
         # [rad/s] of each actuator, then the joints (least squares: rates = J(q) v)
         rates = self._direction * speeds / self._per_rad
         self._velocity = np.linalg.lstsq(amap.jacobian(self._position), rates, rcond=None)[0]
-        alarms = [(s, got[s.id].alarms) for s in self.servos if got[s.id].alarms]
+        alarms = [(s, got[s.id].alarms) for s in self.servos if s.id in got and got[s.id].alarms]
         self._alarm = "; ".join(f"servo {s.id} ({s.name}): {', '.join(a)}" for s, a in alarms) if alarms else None
         self._cycles += 1
         return True
+
+    def _find_silent(self) -> None:
+        """The servos that answer no ping, of those the failed reads missed and those silent
+        already: a sync read broken off at a silent servo loses the replies after it too."""
+        suspects = sorted(set(self._missing) | set(self._silent))
+        with self._io:
+            self._silent = [i for i in suspects if self.bus.ping(i) is None]
+
+    def _diagnose(self) -> str | None:
+        """Why the arm cannot be driven now, else None: servos that do not answer (named by a
+        ping each), replies lost read after read, alarms, servos reset (a power cycle: their
+        torque off, their settings lost) or let go (their torque off after an alarm). Servos
+        reset while a fault is said already are set up again here (:meth:`_set_up_again`)."""
+        if self._lost > self.max_lost or self._silent:
+            self._find_silent()
+        port = self.bus.port
+        if self._silent:
+            return f"servo id {self._named(self._silent)} does not answer on {port}: check its cable and its power"
+        if self._lost > self.max_lost:
+            return (
+                f"the replies of servo id {self._named(self._missing)} are lost, more than {self.max_lost} "
+                f"reads in a row, though it answers a ping, on {port} (noise on the bus? a loose connector?)"
+            )
+        with self._io:
+            settings = self.bus.read_settings(self.ids)
+        reset = [i for i, st in settings.items() if st.acceleration != self._accel_units.get(i)]
+        if reset:
+            if self.fault is None:
+                self.homed = False  # (the arm's servos are not as the adapter set them: no move until they are)
+                return (
+                    f"servo id {self._named(reset)} was reset (a power cycle? its torque off, its acceleration "
+                    f"limit gone) on {port}: set up again as soon as it answers"
+                )
+            self._set_up_again()
+            with self._io:
+                settings = self.bus.read_settings(self.ids)
+        parts = [f"alarm: {self._alarm}"] if self._alarm is not None else []
+        limp = [i for i, st in settings.items() if not st.torque]
+        if limp:
+            parts.append(
+                f"servo id {self._named(limp)} let go (its torque off): see to the cause, then "
+                f"armd unlock {self.robot.name} --assume-rest"
+            )
+        return "; ".join(parts) or None
 
     def _speeds(self, v: FloatArray, q: FloatArray | None = None) -> dict[int, int]:
         """Each servo's speed [counts/s] for joint velocities ``v`` [rad/s] at position ``q``
@@ -341,6 +535,7 @@ class BusServoAdapter(Adapter):
         speeds = self._speeds(v, q)
         with self._io:
             self.bus.write_goals({i: int(c) for i, c in zip(self.ids, counts, strict=True)}, speeds)
+        self._goal = np.array(q, dtype=float)
 
     # -- the Adapter hooks ----------------------------------------------------------------------
 
@@ -350,11 +545,15 @@ class BusServoAdapter(Adapter):
         # limit and the acceleration limit's change since the last cycle; a servo given a speed
         # moves at it, not faster, whatever its loop would do (a smooth speed, not steps)
         now = time.monotonic()
+        stop = cmd.kind == "stop"
         if first:
             self.tracking = np.zeros(self.robot.nq)
-            self._v_sent, self._v_sent_at = self._velocity.copy(), now
+            # (a stop: from the state it was planned from, which under a fault is carried on past the last reading)
+            self._v_sent, self._v_sent_at = (cmd.velocity[0] if stop else self._velocity).copy(), now
         p, v, _ = cmd.sample_at(t)
-        v = np.clip(v + (p - self._position) / CORRECTION, -self._vmax, self._vmax)
+        if self._lost == 0:  # (a reading lost: no correction by an old one)
+            v = v + (p - self._position) / CORRECTION
+        v = np.clip(v, -self._vmax, self._vmax)
         # each joint's speed changes by no more than its acceleration limit allows since the last
         # change (a late cycle: a change no larger than the time it took)
         since = max(now - self._v_sent_at, 0.0)
@@ -368,12 +567,16 @@ class BusServoAdapter(Adapter):
         v = np.clip(v, base - budget, base + budget)
         self._v_sent, self._v_sent_at = v, now
         self._send(cmd.sample_at(t + lead)[0], v)
-        if not self._read():
+        read = self._read()
+        if stop:  # a stop is never aborted, a fault or not: it ends when its time is up and the arm is still
+            still = read and bool(np.all(np.abs(self._velocity) < 0.05))
+            return t >= cmd.duration and (still or t >= cmd.duration + self.settle)
+        if not read:
+            if self._lost > self.max_lost:
+                raise ControllerFault(self._diagnose() or f"replies lost on {self.bus.port}")
             return False  # (a lost reply: the goals go on; monitoring waits for the next reading)
         if self._alarm is not None:
-            raise ControllerFault(f"alarm: {self._alarm}")
-        if cmd.kind == "stop":  # a stop is never aborted: it ends when its time is up and the arm is still
-            return t >= cmd.duration and bool(np.all(np.abs(self._velocity) < 0.05))
+            raise ControllerFault(self._diagnose() or f"alarm: {self._alarm}")
         plan = cmd.sample_at(t)[0]
         error = self._position - plan
         if t < cmd.duration:
@@ -419,11 +622,12 @@ class BusServoAdapter(Adapter):
         self.emergency_stop(f"{cmd.id}-{what}", f"{what} error on {name}")
 
     def hold(self) -> None:
-        """Goals where the servos are (each brakes within its own limits, set at start-up)."""
-        if self._reading:
-            top = self._speeds(self._vmax)
-            with self._io:
-                self.bus.write_goals({i: self._reading[i].position for i in self.ids if i in self._reading}, top)
+        """Each servo's goal where it comes to rest braking at its joint's acceleration limit
+        from how it moves (:meth:`estimate`), at the speed it has: it brakes there by its own
+        limit, never back (a goal behind a servo at speed would send it back)."""
+        s = self.estimate()
+        rest = self.robot.limits.clip(s.position + s.velocity * np.abs(s.velocity) / (2.0 * self._amax))
+        self._send(rest, np.abs(s.velocity))
 
     def measure(self) -> JointState:
         if time.monotonic() - self._read_at > FRESH:
@@ -431,18 +635,27 @@ class BusServoAdapter(Adapter):
         return JointState(self._position.copy(), self._velocity.copy(), np.zeros(self.robot.nq))
 
     def estimate(self) -> JointState:
-        return JointState(self._position.copy(), self._velocity.copy(), np.zeros(self.robot.nq))
+        """The arm's state now, from the last reading carried on to now: each joint on at the
+        faster of its measured speed and the speed last sent, for as long as since the reading
+        (at most the lead), never past its goal last sent. Where a joint not read lately may be
+        by now, at the farthest: a stop planned from it never asks a joint back."""
+        dt = min(max(time.monotonic() - self._read_at, 0.0), self.lead)
+        v, sent = self._velocity, self._v_sent
+        fast = np.where(np.sign(sent) == np.sign(v), np.sign(v) * np.maximum(np.abs(v), np.abs(sent)), v)
+        p = np.clip(
+            self._position + fast * dt,
+            np.minimum(self._position, self._goal),
+            np.maximum(self._position, self._goal),
+        )
+        return JointState(p, fast, np.zeros(self.robot.nq))
 
     def check(self) -> None:
-        """A read if none came lately (an idle arm); an alarm or a silent bus is a fault."""
+        """A read if none came lately (an idle arm), then :meth:`_diagnose`: a reason is a fault."""
         if time.monotonic() - self._read_at > self.check_period:
             self._read()
-            if self._lost:
-                raise ControllerFault(
-                    f"servo id {', '.join(map(str, self._missing))} did not answer on {self.bus.port}"
-                )
-        if self._alarm is not None:
-            raise ControllerFault(f"alarm: {self._alarm}")
+        why = self._diagnose()
+        if why is not None:
+            raise ControllerFault(why)
 
     def grip(self, opening: float) -> None:
         gripper = self.robot.gripper
@@ -457,18 +670,13 @@ class BusServoAdapter(Adapter):
     def unlock(self, how: str) -> None:
         """An operator's word that the servos may hold again (``armd unlock ROBOT --assume-rest``,
         after an alarm: the cause seen to): each servo's alarm cleared (a Dynamixel rebooted),
-        its goal where it is, its torque on. The arm holds where it is; nothing moves."""
+        then set up as at start-up (:meth:`_configure`: its acceleration limit, its goal where it
+        is, its torque on, read back). The arm holds where it is; nothing moves."""
         with self._io:
             for i in self.ids:
                 self.bus.clear_alarm(i)
-            got = self.bus.read(self.ids)
-            missing = [i for i in self.ids if i not in got]
-            if missing:
-                raise ControllerFault(f"servo id {', '.join(map(str, missing))} did not answer on {self.bus.port}")
-            self.bus.write_goals({i: got[i].position for i in self.ids}, self._speeds(np.zeros(self.robot.nq)))
-            for i in self.ids:
-                self.bus.set_torque(i, True)
-        self._read()
+        self._configure()
+        self.homed = True
 
     def shutdown(self) -> None:
         """The port released; the servos keep their torque and hold (turn it off: ``armd record``)."""

@@ -18,7 +18,7 @@ import time
 
 from armd.errors import ControllerFault
 
-from .bus_servo import Reading, SdkBus, SdkBusAdapter
+from .bus_servo import Reading, SdkBus, SdkBusAdapter, Settings
 
 log = logging.getLogger(__name__)
 
@@ -45,22 +45,13 @@ class DynamixelBus(SdkBus):
     protocol = 2.0
     torque_address = TORQUE
     write_errors = 0x7F  # (bit 7 is the alert: a hardware error, not the write's)
-
-    def __init__(self, port: str, baud: int) -> None:
-        super().__init__(port, baud)
-        self._acceleration: dict[int, float] = {}  # (what set_limits set: a reboot forgets it)
+    sync_read_extra = (False,)  # (not the fast sync read)
+    ping_bytes = 24  # (a ping 10, its answer 14)
 
     def read(self, ids: list[int]) -> dict[int, Reading]:
-        self._fresh()
-        result = self.packets.syncReadTx(self.handler, STATE, STATE_SIZE, list(ids), len(ids), False)
         out: dict[int, Reading] = {}
-        if not self._ok(result):
-            return out
         alerted = []
-        for i in ids:  # (each reply in the order asked: a lost one loses those after it too)
-            data, result, error = self.packets.readRx(self.handler, i, STATE_SIZE)
-            if not self._ok(result) or len(data) < STATE_SIZE:
-                break
+        for i, (data, error) in self._sync_read(STATE, STATE_SIZE, ids).items():
             if error & ALERT:
                 alerted.append(i)
             out[i] = Reading(
@@ -86,10 +77,16 @@ class DynamixelBus(SdkBus):
         self._fresh()
         self.packets.syncWriteTxOnly(self.handler, PROFILE_VELOCITY, 8, params, len(params))
 
-    def set_limits(self, ident: int, acceleration: float) -> None:
-        self._acceleration[ident] = acceleration  # (a reboot forgets it: set again)
+    def read_settings(self, ids: list[int]) -> dict[int, Settings]:
+        torque = self._sync_read(TORQUE, 1, ids)
+        accel = self._sync_read(PROFILE_ACCELERATION, 4, ids)
+        both = [i for i in ids if i in torque and i in accel]
+        return {i: Settings(bool(torque[i][0][0]), _signed(accel[i][0], 0, 4)) for i in both}
+
+    def set_limits(self, ident: int, acceleration: float) -> int:
         units = max(1, math.floor(acceleration / ACCELERATION_UNIT))  # (0 would be the motor's: none)
         self._write(ident, PROFILE_ACCELERATION, 4, units)
+        return units
 
     def clear_alarm(self, ident: int) -> None:
         """A hardware error holds the torque off until a reboot (the servo's RAM back to its defaults)."""
@@ -103,8 +100,7 @@ class DynamixelBus(SdkBus):
             raise ControllerFault(
                 f"servo id {ident} on {self.port} did not reboot: {self.packets.getTxRxResult(result)}"
             )
-        time.sleep(REBOOT_TIME)
-        self.set_limits(ident, self._acceleration[ident])
+        time.sleep(REBOOT_TIME)  # (its RAM back to its defaults: the adapter sets it up again)
 
 
 class DynamixelAdapter(SdkBusAdapter):

@@ -21,7 +21,7 @@ from __future__ import annotations
 import logging
 import math
 
-from .bus_servo import Reading, SdkBus, SdkBusAdapter
+from .bus_servo import Reading, SdkBus, SdkBusAdapter, Settings
 
 log = logging.getLogger(__name__)
 
@@ -51,15 +51,8 @@ class FeetechBus(SdkBus):
     torque_address = TORQUE
 
     def read(self, ids: list[int]) -> dict[int, Reading]:
-        self._fresh()
-        result = self.packets.syncReadTx(self.handler, STATE, STATE_SIZE, list(ids), len(ids))
         out: dict[int, Reading] = {}
-        if not self._ok(result):
-            return out
-        for i in ids:  # (each reply in the order asked: a lost one loses those after it too)
-            data, result, error = self.packets.readRx(self.handler, i, STATE_SIZE)
-            if not self._ok(result) or len(data) < STATE_SIZE:
-                break
+        for i, (data, error) in self._sync_read(STATE, STATE_SIZE, ids).items():
             position, speed, load = (data[k] | (data[k + 1] << 8) for k in (0, 2, 4))
             out[i] = Reading(
                 position=position,
@@ -71,6 +64,9 @@ class FeetechBus(SdkBus):
             )
         return out
 
+    def read_settings(self, ids: list[int]) -> dict[int, Settings]:
+        return {i: Settings(bool(d[0]), d[1]) for i, (d, _) in self._sync_read(TORQUE, 2, ids).items()}
+
     def write_goals(self, goals: dict[int, int], speeds: dict[int, int]) -> None:
         params: list[int] = []  # per servo: goal position 42/2, goal time 44/2 (0: by speed), goal speed 46/2
         for i, c in goals.items():
@@ -79,9 +75,10 @@ class FeetechBus(SdkBus):
         self._fresh()
         self.packets.syncWriteTxOnly(self.handler, GOAL_POSITION, 6, params, len(params))
 
-    def set_limits(self, ident: int, acceleration: float) -> None:
+    def set_limits(self, ident: int, acceleration: float) -> int:
         units = max(1, min(254, math.floor(acceleration / ACCELERATION_UNIT)))  # (0 would be the motor's: none)
         self._write(ident, ACCELERATION, 1, units)
+        return units
 
     def clear_alarm(self, ident: int) -> None:
         """An STS latches an overload until its torque is enabled again: the torque off, then on (at set_torque)."""

@@ -185,6 +185,8 @@ def test_a_blocked_joint_aborts_the_move_and_stops_the_arm(
 def test_an_alarm_aborts_faults_and_names_the_servo(
     client: ArmClient, service: object, adapter_session: zenoh.Session
 ) -> None:
+    """An overheat mid-move: the move aborted, the fault naming the servo; the servo lets go (its
+    unloading condition) and stays limp once cool, the fault saying so, until an operator unlocks."""
     arm = robots.load("so101")
     with feetech_arm(adapter_session, service) as (emu, _):
         events, sub = collect(client, "armd/so101/events")
@@ -199,8 +201,17 @@ def test_an_alarm_aborts_faults_and_names_the_servo(
         with pytest.raises(ArmdError) as e:
             client.move("so101", [0.0] * 5)
         assert e.value.code == "no_adapter"
-        emu.set_temperature(2, 40.0)
+        emu.set_temperature(2, 40.0)  # cool again: the alarm clears, but the servo let go (its unloading condition)
+        wait_for(lambda: sum(e["event"] == "fault" for e in events) == 2, timeout=5, what="the second fault")
+        limp = [e for e in events if e["event"] == "fault"][1]
+        assert "servo id 2 (shoulder_lift) let go" in str(limp["reason"]) and "armd unlock so101" in str(limp["reason"])
+        time.sleep(0.5)
+        assert not any(e["event"] == "recovered" for e in events)  # (never unlocked by the adapter itself)
+        assert emu.register(2, 40) == 0
+        answer = client.unlock("so101", "assume_rest", wait=5.0)
+        assert answer is not None and answer["event"] == "unlocked", answer
         wait_for(lambda: any(e["event"] == "recovered" for e in events), timeout=5, what="the recovery")
+        assert emu.register(2, 40) == 1 and emu.register(2, 41) > 0  # torque on, its acceleration limit set
         sub.undeclare()  # type: ignore[attr-defined]
 
 

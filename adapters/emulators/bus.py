@@ -40,7 +40,8 @@ this is the documented behaviour of a position servo, with each vendor's numbers
   outside the control table's limits they set the voltage or overheat bit.
 
 Faults, for tests: ``drop_replies(id, n)`` (the next ``n`` status packets of that servo are
-lost on the wire), ``silence(id)`` (it never answers again: a cable off), ``power_cycle()``
+lost on the wire), ``silence(id)`` (it never answers again: a cable off), ``trip_overload(id)``
+(its overload protection trips, as a payload too heavy would make it), ``power_cycle()``
 (RAM registers back to their defaults: torque off; the EEPROM and the horn's position stay).
 """
 
@@ -181,6 +182,13 @@ class BusEmulator(PtyEmulator):
         """Lose the next ``n`` status packets of servo ``ident`` (noise on the wire)."""
         with self._lock:
             self.servos[ident].drop += int(n)
+
+    def trip_overload(self, ident: int) -> None:
+        """The servo's overload protection trips now (a load the motion model cannot make: a
+        payload too heavy): its overload bit, and its torque off where its table says so."""
+        with self._lock:
+            self._advance()
+            self._overloaded(ident)
 
     def silence(self, ident: int, silent: bool = True) -> None:
         """The servo hears nothing and answers nothing (its cable off), or again."""

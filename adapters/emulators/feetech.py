@@ -40,6 +40,8 @@ bit 15, or bit 11 for the offset, bit 10 for the load):
   present temperature 63 (C), moving 66, present current 69/2.
 - Error bits in every status packet: 0 voltage, 2 overheat, 5 overload (1 the sensor and 3
   the current are never raised here). An overload latches until the torque is enabled again.
+  An error whose bit is in the unloading condition (19) turns the torque off (the servo
+  "unloads"): with the factory's 44, an overheat and an overload do, a voltage error does not.
 
 Where the real servo differs, or may:
 
@@ -199,6 +201,8 @@ class FeetechEmulator(BusEmulator):
         t[MOVING] = 1 if abs(s.velocity) > 1.0 else 0
         self._set_word(ident, PRESENT_CURRENT, round(abs(s.load) * 500 / 6.5))  # (6.5 mA a unit)
         t[65] = self._error(ident)
+        if t[65] & t[UNLOADING] & (VOLTAGE_ERROR | OVERHEAT_ERROR):  # (its unloading condition: the torque off)
+            t[TORQUE] = 0
 
     def _return_delay(self, ident: int) -> float:
         return 2e-6 * self.tables[ident][RETURN_DELAY]
