@@ -277,6 +277,23 @@ class SdkBus(Bus):
             log.debug("close failed", exc_info=True)
 
 
+def sync_read(bus: Bus, ids: list[int]) -> dict[int, Reading]:
+    """One sync read of ``ids`` on ``bus``; if it lost a reply fast (garbled: noise on the wire,
+    not a silent servo, whose reply is waited for), once more at once. A servo whose reply was
+    still lost is missing."""
+    t0 = time.monotonic()
+    got = bus.read(ids)
+    if len(got) < len(ids) and time.monotonic() - t0 < RETRY_WITHIN:
+        got = bus.read(ids)
+    return got
+
+
+def silent_servos(bus: Bus, ids: list[int]) -> list[int]:
+    """Those of ``ids`` that answer no ping: a sync read broken off at a silent servo loses the
+    replies of the servos after it too, which are well."""
+    return [i for i in ids if bus.ping(i) is None]
+
+
 def usb_latency_timer(port: str) -> float | None:
     """[s] the latency timer of the USB-serial chip behind ``port`` (an FTDI's, which holds what
     the servos send until it fills or the timer runs out), where the system shows one; else None."""
@@ -452,10 +469,7 @@ class BusServoAdapter(Adapter):
         lost. Never raises: what a run of lost reads means is :meth:`_diagnose`'s to say."""
         wanted = [i for i in self.ids if i not in self._silent]
         with self._io:
-            t0 = time.monotonic()
-            got = self.bus.read(wanted)
-            if len(got) < len(wanted) and time.monotonic() - t0 < RETRY_WITHIN:
-                got = self.bus.read(wanted)  # (noise on the wire: once more, within the cycle)
+            got = sync_read(self.bus, wanted)
         now = time.monotonic()
         missing = [i for i in wanted if i not in got]
         if missing:
@@ -481,9 +495,8 @@ class BusServoAdapter(Adapter):
     def _find_silent(self) -> None:
         """The servos that answer no ping, of those the failed reads missed and those silent
         already: a sync read broken off at a silent servo loses the replies after it too."""
-        suspects = sorted(set(self._missing) | set(self._silent))
         with self._io:
-            self._silent = [i for i in suspects if self.bus.ping(i) is None]
+            self._silent = silent_servos(self.bus, sorted(set(self._missing) | set(self._silent)))
 
     def _diagnose(self) -> str | None:
         """Why the arm cannot be driven now, else None: servos that do not answer (named by a

@@ -3,8 +3,9 @@ calibrate``) and its motion recorded (``armd record``).
 
 Both open the bus themselves (no adapter may be running on the port), ping every servo (a
 silent one is named), turn every torque off (the arm falls limp: support it) and read the
-servos in sync reads, as fast as the bus answers. A lost reply is skipped; more than
-``MAX_LOST`` in a row is a :class:`ControllerFault` naming the silent servos. The torque stays
+servos in sync reads, as fast as the bus answers. A lost reply is skipped (a reply garbled
+is read again at once); no whole reading for ``LOST_FOR`` is a :class:`ControllerFault` naming
+the servos that answer no ping. The torque stays
 off when they end: ``armd adapter`` turns it on again where the arm is.
 
 Calibration (:func:`calibrate`), step by step, each step a prompt answered with Enter:
@@ -38,7 +39,7 @@ from armd.robots import BusServo, Robot
 from armd.robots import calibration as robots_calibration
 
 from .base import actuators_of
-from .bus_servo import MAX_LOST, Bus, Reading, ping_all
+from .bus_servo import Bus, Reading, ping_all, silent_servos, sync_read
 from .trajectory_message import FloatArray
 
 log = logging.getLogger(__name__)
@@ -47,6 +48,7 @@ NUDGE = 0.05  # [rad] the least a nudged joint must turn to show its direction
 LIMP = "Hold the arm: its servos are about to let go (torque off). Then press Enter"
 STILL_READS = 5  # readings whose median is a pose held still
 NUDGE_TRIES = 3  # prompts for a joint that did not move before it is refused
+LOST_FOR = 0.5  # [s] how long the reads may lose a reply before the bus is a fault (a hand is slow)
 
 
 class HandGuided:
@@ -63,20 +65,28 @@ class HandGuided:
         ready()
         for i in self.ids:
             bus.set_torque(i, False)
-        self._lost = 0
+        self._whole_at = time.monotonic()  # [s] the last whole reading (or the start)
 
     def read(self) -> dict[int, Reading] | None:
-        """One sync read of every servo; None if a reply was lost (more than ``MAX_LOST`` in a
-        row: :class:`ControllerFault`)."""
-        got = self.bus.read(self.ids)
+        """One sync read of every servo (:func:`sync_read`); None if a reply was lost (no whole
+        reading for ``LOST_FOR``: :class:`ControllerFault` naming the servos that answer no
+        ping, else those the reads missed)."""
+        got = sync_read(self.bus, self.ids)
+        now = time.monotonic()
         missing = [i for i in self.ids if i not in got]
         if not missing:
-            self._lost = 0
+            self._whole_at = now
             return got
-        self._lost += 1
-        if self._lost > MAX_LOST:
+        if now - self._whole_at > LOST_FOR:
+            quiet = silent_servos(self.bus, missing)
             raise ControllerFault(
-                f"servo id {', '.join(map(str, missing))} did not answer {self._lost} reads in a row on {self.bus.port}"
+                f"servo id {', '.join(map(str, quiet or missing))} "
+                + (
+                    f"does not answer on {self.bus.port}"
+                    if quiet
+                    else f"replies lost for {LOST_FOR} s on {self.bus.port}"
+                )
+                + ": check its cable and its power"
             )
         return None
 

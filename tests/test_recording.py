@@ -349,3 +349,47 @@ def test_record_refuses_an_arm_not_on_a_bus(tmp_path: Path) -> None:
     )
     assert done.returncode == 1 and "insomniac" in done.stderr and "Feetech" in done.stderr, done.stderr
     assert not (tmp_path / "x.json").exists()
+
+
+def test_record_goes_on_through_lost_replies_and_names_a_silent_servo() -> None:
+    """Replies lost read after read (20 of servo 3's: every read for a while loses it and the
+    replies after it) leave a gap in the recording, not an error (the old recorder gave up after
+    4); a servo silent for longer than ``LOST_FOR`` ends it, naming that servo alone."""
+    pytest.importorskip("scservo_sdk")
+    import threading
+
+    from armd.adapters import by_hand
+    from armd.adapters.feetech import FeetechBus
+    from armd.errors import ControllerFault
+
+    arm = robots.load(ARM)
+    with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu:
+        stop = threading.Event()
+        out: list[object] = []
+
+        def run() -> None:
+            try:
+                out.append(
+                    by_hand.record(arm, FeetechBus(emu.port, 1_000_000), stop, seconds=1.5, say=str, ready=lambda: None)
+                )
+            except Exception as e:  # (told below)
+                out.append(e)
+
+        worker = threading.Thread(target=run)
+        worker.start()
+        time.sleep(0.5)
+        emu.drop_replies(3, 20)
+        worker.join(timeout=30)
+        assert not worker.is_alive()
+        rec = out[0]
+        assert isinstance(rec, Recording), rec
+        assert rec.times[-1] > 1.2 and len(rec.times) > 150
+        worker = threading.Thread(target=run)
+        out.clear()
+        worker.start()
+        time.sleep(0.3)
+        emu.silence(3)
+        worker.join(timeout=30)
+        assert not worker.is_alive()
+        assert isinstance(out[0], ControllerFault), out
+        assert out[0].message.startswith("servo id 3 does not answer"), out[0].message
