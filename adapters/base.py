@@ -441,8 +441,8 @@ class Adapter(ABC):
                 if reason != self.fault:  # (its traceback once, not at every pass)
                     log.exception("%s adapter error", self.kind)
                 self._faulted(reason, cmd)
-            if now >= next_state:
-                next_state = now + self.state_period
+            if now >= next_state:  # (on the state's own beat: a slow pass, a bus waiting for a reply, costs no rate)
+                next_state = max(next_state + self.state_period, now)
                 if self._refresh():
                     self._publish_state()
             else:  # (every pass: what a trajectory's start is checked against)
