@@ -14,6 +14,7 @@ import numpy as np
 from armd.clients import ArmClient
 from armd.errors import BadRequest
 
+from . import estop
 from .common import approach, goal, motion_args, numbers
 
 
@@ -212,19 +213,6 @@ def cmd_stop(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_estop(args: argparse.Namespace) -> int:
-    """Straight to the adapters on ``<prefix>/<robot>/estop`` (no service needed); waits
-    ``--wait`` seconds for them to say they are stopping."""
-    with _client(args) as c:
-        acks = c.estop(args.robot, wait=args.wait)
-    for a in acks:
-        print(f"adapter {a['adapter']} ({a['kind']}): stopping, {a.get('duration', 0.0):.3f} s")
-    if not acks:
-        print(f"armd: no adapter of {args.robot} acknowledged the estop within {args.wait} s", file=sys.stderr)
-        return 1
-    return 0
-
-
 def cmd_unlock(args: argparse.Namespace) -> int:
     """An operator's word to an adapter that lost the arm's position (GRBL after a reset or an alarm)."""
     how = "home" if args.home else "assume_rest"
@@ -372,13 +360,9 @@ def register(sub: Any, log_args: argparse.ArgumentParser) -> None:
     _client_args(p)
     p.set_defaults(func=cmd_world)
 
-    p = sub.add_parser(
-        "estop", parents=[log_args], help="emergency stop, straight to the arm's adapters (no service needed)"
-    )
-    p.add_argument("robot")
-    p.add_argument("--wait", type=float, default=1.0, help="seconds to wait for the adapters to answer")
-    _client_args(p)
-    p.set_defaults(func=cmd_estop)
+    p = sub.add_parser("estop", parents=[log_args], help=estop.HELP)  # (run by estop.main: this is its help)
+    estop.add_arguments(p)
+    p.set_defaults(func=estop.run)
 
     p = sub.add_parser(
         "unlock", parents=[log_args], help="tell an adapter that lost the arm's position where the arm is"

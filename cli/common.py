@@ -13,15 +13,9 @@ from armd import robots
 from armd.errors import BadRequest, UnknownRobot
 from armd.robots import Robot
 
+from .logs import LOG_FORMAT, LOG_LEVELS, set_up_logging  # noqa: F401 (the commands' one logging set-up)
+
 log = logging.getLogger(__name__)
-
-LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
-LOG_LEVELS = ("debug", "info", "warning", "error")
-
-
-def set_up_logging(level: str) -> None:
-    """The one logging set-up of every command: ``level`` one of :data:`LOG_LEVELS`."""
-    logging.basicConfig(level=getattr(logging, level.upper()), format=LOG_FORMAT)
 
 
 def all_robots(robots_dir: str | None) -> dict[str, Robot]:

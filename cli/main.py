@@ -11,8 +11,8 @@ from collections.abc import Sequence
 
 from armd.errors import ArmdError
 
-from . import calls, daemons, offline, teach, tools
-from .common import LOG_LEVELS, set_up_logging
+from . import estop
+from .logs import LOG_LEVELS, set_up_logging
 
 EXTRAS = {
     "serial": "hardware",
@@ -23,6 +23,8 @@ EXTRAS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import calls, daemons, offline, teach, tools  # (here: `armd estop` never loads them)
+
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
     parser.add_argument(
         "--log-level",
@@ -43,8 +45,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    words = sys.argv[1:] if argv is None else list(argv)
+    if estop.wanted(words):  # a stop, now: before NumPy, Pinocchio and the catalogue are loaded
+        return estop.main(words)
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(words)
     set_up_logging(args.log_level or getattr(args, "log_default", "warning"))
     try:
         return int(args.func(args))

@@ -105,6 +105,15 @@ def test_estop_and_unlock_reach_the_adapter_with_no_service(tmp_path: Path) -> N
         assert out.returncode == 1 and "nothing to unlock" in out.stderr  # the simulator always knows
         out = armd("estop", "desk4", "--connect", endpoint, "--wait", "0.3")
         assert out.returncode == 1 and "no adapter of desk4 acknowledged" in out.stderr
+        # a stop now: the command loads neither NumPy nor Pinocchio before it is sent (0.3 s)
+        code = (
+            "import sys; from armd.cli import main; "
+            f"r = main(['--log-level', 'error', 'estop', 'gupta3', '--connect', '{endpoint}', '--json']); "
+            "print(r, sorted(m for m in ('numpy', 'pinocchio', 'armd.robots') if m in sys.modules))"
+        )
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+        assert r.stdout.splitlines()[-1] == "0 []", r.stdout + r.stderr
+        assert json.loads(r.stdout.splitlines()[0])["adapter"] == adapter.id
     finally:
         adapter.close()
         session.close()
