@@ -168,6 +168,7 @@ class Adapter(ABC):
         self._fault_count = 0  # faulty checks (and errors) since the fault began
         self._fault_since = 0.0  # [s] when it began (monotonic)
         self.homed = True  # whether the arm's position is known (a subclass that can lose it says so)
+        self.epoch = 0  # one more each time where the arm is was set anew (the state may jump then)
         self.position_source = "commanded"  # or "measured": what the published state is
         self._seen: OrderedDict[str, None] = OrderedDict()  # ids accepted, newest last
         self._unlock: str | None = None  # an operator's unlock request, for the control loop
@@ -461,7 +462,16 @@ class Adapter(ABC):
             if isinstance(e, ControllerFault):
                 raise
             return
+        self.new_epoch()
         self.event("unlocked", how=how)
+
+    def new_epoch(self) -> None:
+        """Where the arm is was set anew (an unlock, a homing, a controller set up again): the
+        state's ``epoch`` goes up, and the state is published at once, before anything is said of
+        it, so the service believes the new position (which may jump) with no wait."""
+        self.epoch += 1
+        if self._refresh():
+            self._publish_state()
 
     def _faulted(self, reason: str, cmd: Command | None) -> None:
         """The controller is faulty for ``reason``: said once (the event ``fault``, a line in
@@ -559,6 +569,7 @@ class Adapter(ABC):
                 "trajectory": None if cmd is None else cmd.id,
                 "fault": self.fault,
                 "homed": self.homed,
+                "epoch": self.epoch,
                 "source": self.position_source,
                 "time": time.time(),
                 "seq": self._seq,

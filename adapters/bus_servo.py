@@ -456,6 +456,7 @@ class BusServoAdapter(Adapter):
             self._finished = True
         self._configure()
         self.homed = True
+        self.new_epoch()  # (limp meanwhile, the arm may have sagged: its state may jump)
         log.info("%s: the servos on %s are set up again (read back)", self.robot.name, self.bus.port)
 
     # -- the bus ------------------------------------------------------------------------------

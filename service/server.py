@@ -105,6 +105,9 @@ class Service:
         self._lock = threading.Lock()
         self._pending: dict[str, tuple[str, _Acceptance]] = {}  # trajectory id: (robot, its acceptance)
         self._seqs: dict[tuple[str, str], int] = {}  # (robot, adapter): the last sequence number seen under that id
+        self._epochs: dict[
+            tuple[str, str], int
+        ] = {}  # (robot, adapter): the last epoch seen (where the arm is, set anew)
         self._disputed: dict[tuple[str, str], float] = {}  # (robot, adapter): when its numbers last went back
         self._payloads: dict[tuple[str, str], bytes] = {}  # (robot, adapter): the last message seen under that id
         self._unproven: dict[tuple[str, str], zenoh.Sample] = {}  # a state that came before its token
@@ -414,6 +417,7 @@ class Service:
             self.book.forget(robot, ident)
             with self._lock:
                 self._seqs.pop((robot, ident), None)
+                self._epochs.pop((robot, ident), None)
                 self._disputed.pop((robot, ident), None)
                 self._payloads.pop((robot, ident), None)
         elif early is not None:  # its state came before its token: trusted now, if still fresh
@@ -442,14 +446,16 @@ class Service:
             return
         try:
             msg = orjson.loads(sample.payload.to_bytes())
-            adapter, seq = msg["adapter"], msg["seq"]
-            if not isinstance(adapter, str) or not isinstance(seq, int) or isinstance(seq, bool):
-                raise ValueError("no adapter id or sequence number")
+            adapter, seq, epoch = msg["adapter"], msg["seq"], msg.get("epoch", 0)
+            if not isinstance(adapter, str) or not all(
+                isinstance(n, int) and not isinstance(n, bool) for n in (seq, epoch)
+            ):
+                raise ValueError("no adapter id, sequence number or epoch")
             state = reported_state(arm, msg)
         except (ValueError, KeyError, TypeError, AttributeError, orjson.JSONDecodeError):
             self._ignore(robot, "malformed")
             return
-        disputed = False
+        disputed = anew = False
         with self._lock:
             if adapter not in self._adapters.get(robot, ()):
                 if len(self._unproven) < UNPROVEN_MAX or (robot, adapter) in self._unproven:
@@ -462,10 +468,14 @@ class Service:
                 payload = sample.payload.to_bytes()
                 if last_seq == seq and self._payloads.get(key) == payload:
                     return  # the same message delivered twice (Zenoh may, over two routes): nobody else's
+                last_epoch = self._epochs.get(key)
                 self._seqs[key] = seq
+                self._epochs[key] = epoch
                 self._payloads[key] = payload
                 now = time.monotonic()
-                began = last_seq is not None and seq <= last_seq
+                # (an adapter's epochs, like its numbers, only rise: one that falls is a second publisher)
+                began = last_seq is not None and (seq <= last_seq or epoch < (last_epoch or 0))
+                anew = last_epoch is not None and epoch > last_epoch
                 if began:
                     self._disputed[key] = now
                 disputed = now - self._disputed.get(key, -math.inf) < DISPUTE_HOLD
@@ -490,7 +500,7 @@ class Service:
         lim, q = arm.limits, state.position
         last = self.book.last(robot, adapter)
         now = self.book.now()
-        if last is not None:
+        if last is not None and not anew:  # (a new epoch: where the arm is was set anew, a jump is no fault)
             dt = now - last[0]
             if np.any(np.abs(q - last[1].position) > lim.velocity * (dt + SETTLE) + JUMP_SLACK) and dt < RESET_AFTER:
                 self._ignore(robot, "not continuous with its last report")

@@ -306,3 +306,27 @@ def test_the_same_message_twice_is_a_double_delivery_not_a_dispute(
         wait_for(lambda: service.book.last(ARM, "twice0000001") is None, what="the dispute")  # type: ignore[attr-defined]
     finally:
         token.undeclare()
+
+
+def test_an_unlock_is_believed_at_once(client: ArmClient, service: object, adapter_session: zenoh.Session) -> None:
+    """GRBL's position unknown until an operator says the arm is at rest: the unlock moves the
+    state by the rest pose's offset (a jump), in a new epoch the service believes at once, so a
+    move sent on the adapter's ``unlocked`` is planned from there and runs (the old service
+    ignored the jump as not continuous for 0.5 s and refused the move ``position_unknown``)."""
+    from armd.adapters.emulators.grbl import GrblEmulator
+    from armd.adapters.grbl import GrblAdapter
+
+    arm = robots.load("gupta3")
+    with GrblEmulator() as emu:
+        adapter = GrblAdapter(adapter_session, arm, emu.port)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            wait_for(lambda: client.state("gupta3").get("homed") is False, what="the position unknown")
+            epoch = adapter.epoch
+            answer = client.unlock("gupta3", "assume_rest", wait=10)
+            assert answer is not None and answer["event"] == "unlocked", answer
+            assert adapter.epoch == epoch + 1
+            r = client.move("gupta3", [0.3, 1.1, -1.2], wait=True, wait_timeout=20)  # at once: no wait for a state
+            assert r.start_source == "adapter"
+        finally:
+            adapter.close()
