@@ -52,7 +52,7 @@ counted), the state published on at its rate meanwhile:
 
 How long a reply may take: the SDKs' timeouts assume an FTDI chip's factory latency (16 ms,
 counted twice); here the link's own, its latency timer's where the system shows one, and at
-least what the pings at start measure (:attr:`SdkBus.latency`), plus ``LINK_MARGIN``: a silent
+else what the pings at start measure (:attr:`SdkBus.latency`), plus ``LINK_MARGIN``: a silent
 servo costs a few milliseconds a read. A latency above ``SLOW_LINK`` is said at start, with how
 to lower it.
 """
@@ -94,6 +94,7 @@ GRIPPER_SPEED = 2000  # [counts/s] the gripper's
 READ_WAIT = 0.001  # [s] the longest one read of the port blocks (the SDKs' packet timeouts still apply)
 START_SLACK = 0.02  # [rad] how far outside its limits the arm may be found at start (as the SSC-32's)
 FRESH = 0.002  # [s] a reading this recent answers measure() without another read
+SDK_LATENCY = 0.016  # [s] what the SDKs assume of every link (an FTDI chip's factory latency timer)
 USB_FRAME = 0.001  # [s] a USB link's latency where nothing says more (a full-speed frame)
 LINK_MARGIN = 0.005  # [s] the slack a reply has beyond its bytes' time and twice the link's latency
 MAX_LATENCY = 0.05  # [s] the most the pings' measure of the link's latency is taken to be
@@ -130,6 +131,10 @@ class Bus(ABC):
     name = "bus"
     port = ""
     latency = 0.0  # [s] how long the link holds a reply beyond its bytes' time on the wire
+
+    def learn_latency(self) -> None:
+        """Take :attr:`latency` from what the pings so far measured (the default: as it is)."""
+        return None
 
     @abstractmethod
     def ping(self, ident: int) -> int | None:
@@ -178,7 +183,8 @@ class SdkBus(Bus):
     torque_address = 0
     write_errors = 0  # the status's error bits that say a write was not taken (Feetech's are alarms)
     sync_read_extra: tuple[Any, ...] = ()  # (more arguments of the SDK's syncReadTx)
-    ping_bytes = 12  # a ping and its answer, both ways [bytes]
+    ping_bytes = 12  # a ping and its answers, both ways [bytes]
+    ping_exchanges = 1  # the SDK's ping: how many requests and answers
 
     def __init__(self, port: str, baud: int) -> None:
         import importlib
@@ -212,8 +218,9 @@ class SdkBus(Bus):
         # here the link's own, its latency timer's where the system has one, else a USB frame's,
         # and what the pings measure (a silent servo then costs a few ms a read, not 34)
         timer = usb_latency_timer(port)
-        self.latency = timer if timer is not None else USB_FRAME  # [s]
+        self.latency = timer if timer is not None else SDK_LATENCY  # [s] (until the pings have measured it)
         self.latency_timer = timer
+        self._took: list[float] = []  # [s] each ping's round trip less the wire's time
         self.handler.setPacketTimeout = self._packet_timeout
 
     def _packet_timeout(self, packet_length: int) -> None:
@@ -231,16 +238,22 @@ class SdkBus(Bus):
         return bool(result == self.sdk.COMM_SUCCESS)
 
     def ping(self, ident: int) -> int | None:
-        """The servo's model number, or None; an answer's round trip, less the wire's time,
-        raises :attr:`latency` (up to ``MAX_LATENCY``) if it took longer."""
+        """The servo's model number, or None (an answer's round trip, less the wire's time, is
+        kept for :meth:`learn_latency`)."""
         self._fresh()
         asked = time.monotonic()
         model, result, _ = self.packets.ping(self.handler, ident)
         if not self._ok(result):
             return None
-        took = time.monotonic() - asked - self.handler.tx_time_per_byte * self.ping_bytes / 1000.0
-        self.latency = min(max(self.latency, took), MAX_LATENCY)
+        wire = self.handler.tx_time_per_byte * self.ping_bytes / 1000.0
+        self._took.append((time.monotonic() - asked - wire) / self.ping_exchanges)
         return int(model)
+
+    def learn_latency(self) -> None:
+        """The link's latency from the pings' round trips so far (the slowest), where the system
+        shows no latency timer: at least a USB frame, at most ``MAX_LATENCY``."""
+        if self.latency_timer is None and self._took:
+            self.latency = min(max(max(self._took), USB_FRAME), MAX_LATENCY)
 
     def _write(self, ident: int, address: int, size: int, value: int) -> None:
         """A write that must be taken (its status: no error), else :class:`ControllerFault`."""
@@ -310,6 +323,7 @@ def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
     gripper_id = robot.gripper.channel if robot.gripper is not None else None
     wanted = [*(s.id for s in servos), *([gripper_id] if gripper_id is not None else [])]
     models = {i: bus.ping(i) for i in wanted}
+    bus.learn_latency()
     silent = [i for i, m in models.items() if m is None]
     if silent:
         names = {s.id: s.name for s in servos}
@@ -329,15 +343,19 @@ def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
     )
     if bus.latency > SLOW_LINK:
         name = os.path.basename(os.path.realpath(bus.port))
+        how = (
+            f"set it to 1 ms: echo 1 | sudo tee /sys/bus/usb-serial/devices/{name}/latency_timer (for good: a "
+            "udev rule, docs/adapters.md)"
+            if name.startswith("ttyUSB")
+            else "a USB-serial adapter whose latency can be set lower is worth it (docs/adapters.md)"
+        )
         log.warning(
             "%s: replies take %.0f ms to come back from %s (a USB-serial chip's latency timer? an FTDI's is "
-            "16 ms from the factory): every bus cycle waits for it, the arm is followed less closely. Set it "
-            "to 1 ms: echo 1 | sudo tee /sys/bus/usb-serial/devices/%s/latency_timer (for good: a udev rule, "
-            "docs/adapters.md)",
+            "16 ms from the factory): every bus cycle waits for it, the arm is followed less closely; %s",
             robot.name,
             1000.0 * bus.latency,
             bus.port,
-            name,
+            how,
         )
 
 

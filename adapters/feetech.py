@@ -49,6 +49,7 @@ class FeetechBus(SdkBus):
     module = "scservo_sdk"
     protocol = 0  # the STS's byte order (little-endian)
     torque_address = TORQUE
+    ping_bytes, ping_exchanges = 28, 2  # (the SDK's ping reads the model number after it: 6 + 6, 8 + 8)
 
     def read(self, ids: list[int]) -> dict[int, Reading]:
         out: dict[int, Reading] = {}

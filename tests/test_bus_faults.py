@@ -307,3 +307,34 @@ def test_a_power_cycle_is_a_new_controller(
         for j, trace in enumerate(joint_traces(arm, emu)):
             _, _, accel = after_fault(trace, t0 + 0.05, time.monotonic())
             assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+
+
+def test_a_slow_usb_link_is_measured_said_and_driven(
+    fault_client: ArmClient, fault_service: Any, adapter_session: zenoh.Session, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A USB-serial chip that holds the servos' replies 16 ms (an FTDI's factory latency timer):
+    the pings at start measure it, the adapter says so with what to do, and sizes its reply
+    timeouts by it; moves run to their goals within the limits, and a silent servo is still
+    named alone."""
+    bench = BENCHES["feetech"]
+    arm = bench.load()
+    with EmulatorProcess(FeetechEmulator, ids=bench.ids, latency=0.016) as emu:
+        adapter = FeetechAdapter(adapter_session, arm, emu.port, prefix=PREFIX)
+        watch = Watch(fault_client, arm.name)
+        try:
+            assert 0.015 <= adapter.bus.latency <= 0.022, adapter.bus.latency
+            assert any("replies take 16 ms" in r.message for r in caplog.records)
+            wait_for(lambda: fault_service._adapter_count(arm) == 1, what="the adapter's token")
+            t0 = time.monotonic()
+            for goal in (bench.start, bench.goal, bench.start):
+                fault_client.move(arm.name, goal, wait=True, wait_timeout=20)
+            assert not watch.of("aborted") and not watch.of("fault")
+            for j, trace in enumerate(joint_traces(arm, emu)):
+                _, _, accel = after_fault(trace, t0 + 0.05, time.monotonic())
+                assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+            emu.silence(4)
+            wait_for(lambda: watch.of("fault"), timeout=5, what="the fault")
+            assert str(watch.of("fault")[0]["reason"]).startswith("servo id 4 (wrist_flex) does not answer")
+        finally:
+            watch.close()
+            adapter.close()

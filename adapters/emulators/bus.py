@@ -17,6 +17,9 @@ The link (all times on ``clock``, like the SSC-32 emulator's):
   and travels back at the same rate; replies of several servos (a sync read) follow one another
   in the order the instruction lists them, each no sooner than the previous one ended.
 - Nothing is ever sent that no instruction asked for.
+- ``latency`` [s] (0: none): the USB-serial chip between the bus and the host holds what the
+  servos send, as an FTDI chip does until its latency timer runs out (16 ms from the factory)
+  or a USB packet (62 bytes) fills: a batch leaves ``latency`` after its first byte arrived.
 
 A servo (the motion model; the vendors publish no closed form of their firmware's loop, so
 this is the documented behaviour of a position servo, with each vendor's numbers):
@@ -63,6 +66,7 @@ from .pty import PtyEmulator
 BITS_PER_BYTE = 10  # 8N1
 STEP = 0.001  # [s] the motion model's integration step
 PROCESSING = 50e-6  # [s] a servo's firmware: from an instruction's last byte to its reply's first
+USB_PACKET = 62  # [bytes] of data in a USB-serial chip's packet to the host (an FTDI's 64, less 2 of status)
 
 
 @dataclass
@@ -111,11 +115,13 @@ class BusEmulator(PtyEmulator):
         baud: int | None = 1_000_000,
         clock: Callable[[], float] = time.monotonic,
         positions: dict[int, float] | None = None,
+        latency: float = 0.0,
     ) -> None:
         super().__init__()
         if len(set(ids)) != len(ids) or not ids:
             raise ValueError(f"ids must be distinct and not empty, got {ids}")
         self.baud = baud
+        self.latency = float(latency)
         self.clock = clock
         self.servos: dict[int, ServoState] = {}
         for i in ids:
@@ -326,18 +332,31 @@ class BusEmulator(PtyEmulator):
         for i in self.servos:
             self._update_table(i)
         out = bytearray()
-        while self._tx and self._tx[0][0] <= now:
-            out.append(self._tx.popleft()[1])
+        while self._tx and (leave := self._released(0)) <= now:  # a batch at a time (a byte, with no latency)
+            for _ in range(USB_PACKET if self.latency else 1):
+                if not self._tx or self._tx[0][0] > leave:
+                    break
+                out.append(self._tx.popleft()[1])
         if out and self._master >= 0:
             with contextlib.suppress(BlockingIOError):  # the host's input buffer full: lost, as on a UART
                 os.write(self._master, out)
         return now
 
+    def _released(self, k: int) -> float:
+        """When the reply byte waiting ``k``-th reaches the host [s]: at once, or through a
+        USB-serial chip's buffer (``latency``: its latency timer), in a batch that leaves
+        ``latency`` after its first byte arrived, or when ``USB_PACKET`` bytes fill it."""
+        first = self._tx[k][0]
+        if not self.latency:
+            return first
+        full = k + USB_PACKET - 1
+        return min(first + self.latency, self._tx[full][0]) if full < len(self._tx) else first + self.latency
+
     def _serve(self) -> None:
         master = self._master
         while not self._stop.is_set():
             with self._lock:
-                due = min(self._rx[0][0] if self._rx else math.inf, self._tx[0][0] if self._tx else math.inf)
+                due = min(self._rx[0][0] if self._rx else math.inf, self._released(0) if self._tx else math.inf)
                 wait = due - self.clock()
             timeout = 0.005 if wait == math.inf else min(max(wait, 0.0), 0.005)
             if select.select([master], [], [], timeout)[0]:
