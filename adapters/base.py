@@ -413,23 +413,24 @@ class Adapter(ABC):
         next_state = next_check = time.monotonic()
         while not self._stop.is_set():
             now = time.monotonic()
-            with self._lock:
-                cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
-                unlock, self._unlock = (self._unlock, None) if finished else (None, self._unlock)
-                self._new = False
+            cmd, finished = None, True
             try:
                 if now >= next_check:
                     next_check = now + self.check_period
                     self.check()
                     if self.fault:
                         self._recovered()
+                with self._lock:  # (after the check, which may have ended or replaced the trajectory)
+                    cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
+                    unlock, self._unlock = (self._unlock, None) if finished else (None, self._unlock)
+                    self._new = False
                 if unlock is not None:
                     self._do_unlock(unlock)
                 # (a stop runs under a fault too: the one that brakes the arm after it)
                 if cmd is not None and not finished and (not self.fault or cmd.kind == "stop"):
                     if first:
                         self.event("started", id=cmd.id)
-                    if self.execute(cmd, now - t0, first):
+                    if self.execute(cmd, time.monotonic() - t0, first):  # (now: the check may have taken a while)
                         with self._lock:
                             if self._cmd is cmd:
                                 self._finished = True

@@ -71,7 +71,7 @@ class HandGuided:
         """One sync read of every servo (:func:`sync_read`); None if a reply was lost (no whole
         reading for ``LOST_FOR``: :class:`ControllerFault` naming the servos that answer no
         ping, else those the reads missed)."""
-        got = sync_read(self.bus, self.ids)
+        got, _ = sync_read(self.bus, self.ids)
         now = time.monotonic()
         missing = [i for i in self.ids if i not in got]
         if not missing:
