@@ -85,6 +85,7 @@ LEAD = 0.05  # [s] how far ahead on the plan each goal is, at least (a cycle thi
 LEAD_MARGIN = 0.05  # [s] ... and more than the time a servo at full speed takes to brake at its limit
 MAX_LEAD = 0.3  # [s] the most the lead grows to on a busy machine
 LATENESS_DECAY = 0.5  # per second: how fast the lead forgets a late cycle
+CYCLE_WEIGHT = 0.2  # of the last cycle's length in the moving average of a cycle's
 CORRECTION = 0.1  # [s] a servo off the plan is brought back to it over about this long
 MAX_LOST = 3  # failed reads in a row before the bus is a fault
 SETTLE = 0.5  # [s] after a trajectory's end, how long the arm may take to reach its goal
@@ -290,15 +291,18 @@ class SdkBus(Bus):
             log.debug("close failed", exc_info=True)
 
 
-def sync_read(bus: Bus, ids: list[int]) -> dict[int, Reading]:
+def sync_read(bus: Bus, ids: list[int]) -> tuple[dict[int, Reading], float]:
     """One sync read of ``ids`` on ``bus``; if it lost a reply fast (garbled: noise on the wire,
     not a silent servo, whose reply is waited for), once more at once. A servo whose reply was
-    still lost is missing."""
-    t0 = time.monotonic()
+    still lost is missing. And when the reading was taken [s, monotonic]: when the read that
+    got it was asked (the servos answer what they measure as the request arrives; the reply
+    may come a USB latency later)."""
+    asked = time.monotonic()
     got = bus.read(ids)
-    if len(got) < len(ids) and time.monotonic() - t0 < RETRY_WITHIN:
+    if len(got) < len(ids) and time.monotonic() - asked < RETRY_WITHIN:
+        asked = time.monotonic()
         got = bus.read(ids)
-    return got
+    return got, asked
 
 
 def silent_servos(bus: Bus, ids: list[int]) -> list[int]:
@@ -390,7 +394,7 @@ class BusServoAdapter(Adapter):
         self._names = {s.id: s.name for s in self.servos}
         self._io = threading.RLock()  # the bus: the control loop, and the gripper's requests
         self._reading: dict[int, Reading] = {}
-        self._read_at = -math.inf
+        self._read_at = self._sampled_at = -math.inf  # [s] when the last reading came, when it was taken
         self._lost = 0
         self._missing: list[int] = []  # the servos the last failed read missed
         self._silent: list[int] = []  # servos that answer no ping (a cable off): not read until they do
@@ -406,6 +410,7 @@ class BusServoAdapter(Adapter):
         self._vmax, self._amax = robot.limits.velocity, robot.limits.acceleration
         self._v_sent, self._v_sent_at = np.zeros(robot.nq), 0.0  # [rad/s] the speeds last sent, and when
         self._lateness = 0.0  # [s] the longest gap between cycles lately (decaying)
+        self._cycle = self.run_tick  # [s] how long a bus cycle takes lately (a moving average)
         # [counts/s] each servo's fastest: its joints' velocity limits (a linkage: the sum), rounded down
         self._top = np.floor(amap.rate_bounds(self._vmax, self._amax)[0] * self._per_rad)
         self._direction = np.array([s.direction for s in self.servos])
@@ -488,7 +493,7 @@ class BusServoAdapter(Adapter):
         lost. Never raises: what a run of lost reads means is :meth:`_diagnose`'s to say."""
         wanted = [i for i in self.ids if i not in self._silent]
         with self._io:
-            got = sync_read(self.bus, wanted)
+            got, sampled = sync_read(self.bus, wanted)
         now = time.monotonic()
         missing = [i for i in wanted if i not in got]
         if missing:
@@ -497,7 +502,7 @@ class BusServoAdapter(Adapter):
             return False
         self._lost = 0
         self._reading.update(got)
-        self._read_at = now
+        self._read_at, self._sampled_at = now, sampled
         counts = np.array([self._reading[i].position for i in self.ids], dtype=float)
         # (a silent servo: where it was last read, still)
         speeds = np.array([0.0 if i in self._silent else self._reading[i].speed for i in self.ids])
@@ -525,13 +530,9 @@ class BusServoAdapter(Adapter):
         if self._lost > self.max_lost or self._silent:
             self._find_silent()
         port = self.bus.port
-        if self._silent:
-            return f"servo id {self._named(self._silent)} does not answer on {port}: check its cable and its power"
-        if self._lost > self.max_lost:
-            return (
-                f"the replies of servo id {self._named(self._missing)} are lost, more than {self.max_lost} "
-                f"reads in a row, though it answers a ping, on {port} (noise on the bus? a loose connector?)"
-            )
+        if self._silent or self._lost > self.max_lost:  # (one reason, whether a ping got through or not)
+            quiet = self._silent or self._missing[:1]  # (else the servo where the reads broke off)
+            return f"servo id {self._named(quiet)} does not answer on {port}: check its cable and its power"
         with self._io:
             settings = self.bus.read_settings(self.ids)
         reset = [i for i, st in settings.items() if st.acceleration != self._accel_units.get(i)]
@@ -582,16 +583,21 @@ class BusServoAdapter(Adapter):
             self.tracking = np.zeros(self.robot.nq)
             # (a stop: from the state it was planned from, which under a fault is carried on past the last reading)
             self._v_sent, self._v_sent_at = (cmd.velocity[0] if stop else self._velocity).copy(), now
-        p, v, _ = cmd.sample_at(t)
-        if self._lost == 0:  # (a reading lost: no correction by an old one)
-            v = v + (p - self._position) / CORRECTION
-        v = np.clip(v, -self._vmax, self._vmax)
-        # each joint's speed changes by no more than its acceleration limit allows since the last
-        # change (a late cycle: a change no larger than the time it took)
         since = max(now - self._v_sent_at, 0.0)
+        if not first:
+            self._cycle += (since - self._cycle) * CYCLE_WEIGHT
         # the lead grows with how late cycles have come lately (a busy machine), up to MAX_LEAD
         self._lateness = max(self._lateness * LATENESS_DECAY**since, since)
         lead = min(max(self.lead, 2.0 * self._lateness), MAX_LEAD)
+        # the plan's speed as the next cycle comes: a servo given it ramps to it meanwhile (within its
+        # own limit), where the speed now would leave it a cycle behind the plan (20 ms at 3 rad/s on a
+        # link with an FTDI's latency: 0.06 rad)
+        v = cmd.sample_at(t + min(self._cycle, lead))[1]
+        if self._lost == 0:  # (off the plan as of the last reading, taken a cycle and a link's latency ago)
+            v = v + (cmd.sample_at(t - (now - self._sampled_at))[0] - self._position) / CORRECTION
+        v = np.clip(v, -self._vmax, self._vmax)
+        # each joint's speed changes by no more than its acceleration limit allows since the last
+        # change (a late cycle: a change no larger than the time it took)
         base = self._v_sent
         if since > lead and self._read():  # (held up this long, a servo may have reached its goal
             base = self._velocity  # and stopped: it starts again from how fast it moves now, ramping up)
@@ -609,7 +615,7 @@ class BusServoAdapter(Adapter):
             return False  # (a lost reply: the goals go on; monitoring waits for the next reading)
         if self._alarm is not None:
             raise ControllerFault(self._diagnose() or f"alarm: {self._alarm}")
-        plan = cmd.sample_at(t)[0]
+        plan = cmd.sample_at(t - (now - self._sampled_at))[0]  # (where the plan was when the reading was taken)
         error = self._position - plan
         if t < cmd.duration:
             self.tracking = np.maximum(self.tracking, np.abs(error))
@@ -671,7 +677,7 @@ class BusServoAdapter(Adapter):
         faster of its measured speed and the speed last sent, for as long as since the reading
         (at most the lead), never past its goal last sent. Where a joint not read lately may be
         by now, at the farthest: a stop planned from it never asks a joint back."""
-        dt = min(max(time.monotonic() - self._read_at, 0.0), self.lead)
+        dt = min(max(time.monotonic() - self._sampled_at, 0.0), self.lead)
         v, sent = self._velocity, self._v_sent
         fast = np.where(np.sign(sent) == np.sign(v), np.sign(v) * np.maximum(np.abs(v), np.abs(sent)), v)
         p = np.clip(

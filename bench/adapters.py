@@ -23,7 +23,9 @@ Medians and worst over the runs.
 
 Then the bus servos (bench/bus_servo_bench.py): the Feetech and Dynamixel adapters' bus round
 trip against the SDK's own sync read, the bus cycles a second, the tracking error and the
-stop's latency.
+stop's latency; and their fault table (bench/bus_faults_bench.py): each fault injected mid-move
+at full speed, when it was noticed, how far the arm ran on and back, how hard it braked, the
+state's rate meanwhile.
 
 Run: ``.venv/bin/python bench/adapters.py [--runs 3] [--only ssc32|grbl|bus]``. Prints Markdown tables.
 """
@@ -318,9 +320,7 @@ def main() -> None:
             b.close()
     if not rows:
         if args.only in (None, "bus"):
-            from bus_servo_bench import bus_rows, print_table
-
-            print_table(bus_rows(args.runs))
+            bus_tables(args.runs)
         return
     print(
         "| adapter | condition | speed / limit | acceleration / limit | executed / planned | stop / planned stop "
@@ -337,9 +337,15 @@ def main() -> None:
         )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
     if args.only in (None, "bus"):
-        from bus_servo_bench import bus_rows, print_table
+        bus_tables(args.runs)
 
-        print_table(bus_rows(args.runs))
+
+def bus_tables(runs: int) -> None:
+    from bus_faults_bench import fault_rows, print_fault_table
+    from bus_servo_bench import bus_rows, print_table
+
+    print_table(bus_rows(runs))
+    print_fault_table(fault_rows(runs))
 
 
 if __name__ == "__main__":

@@ -11,6 +11,9 @@ velocity and acceleration limits at every moment.
   and largest change of speed over a window.
 - :func:`grbl_motion`, :func:`fitted_peaks`: GRBL's trace of the arm, and its peak speed and
   acceleration fitted over a window (a stepper's whole steps are not its motion).
+- :func:`bus_joint_traces`, :func:`braking`: a bus-servo arm's joints as its servos moved
+  (the bus emulators' model, every step), and how a joint came to rest after a moment (a
+  fault): its speed then, how far it ran on, how far back against its way, how hard it braked.
 - :func:`ratios`: the worst velocity (exact, per linear piece) and acceleration (the change of
   speed between pieces) of a piecewise-linear joint path, as ratios of the limits, and the
   worst position excursion beyond the limits.
@@ -20,10 +23,11 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from armd.robots import Robot, Servo, Stepper
+from armd.robots import BusServo, Robot, Servo, Stepper
 from armd.robots.types import FloatArray
 
 from .grbl import GrblEmulator
@@ -252,3 +256,42 @@ def actuator_limits_deg(robot: Robot) -> tuple[FloatArray, FloatArray]:
     (``|M| @`` them; a linkage's with its curvature: ActuatorMap.rate_bounds)."""
     speed, accel = robot.actuators.rate_bounds(robot.limits.velocity, robot.limits.acceleration)
     return np.degrees(speed), np.degrees(accel)
+
+
+def bus_joint_traces(robot: Robot, emulator: Any) -> list[FloatArray]:
+    """Each joint's angle [rad] over time at a bus emulator's servos (``trace``: every model
+    step a servo moved; one servo a joint): rows (t [s], q [rad])."""
+    out = []
+    for act in robot.actuators.actuators:
+        assert isinstance(act, BusServo)
+        trace = np.array(emulator.trace(act.id))
+        out.append(np.column_stack([trace[:, 0], (trace[:, 1] - act.zero) * act.direction / act.counts_per_rad]))
+    return out
+
+
+@dataclass(frozen=True)
+class Braking:
+    """How a joint came to rest after a moment: its ``speed`` then [rad/s], how far it ran on
+    (``travel`` [rad], along its way), how far ``back`` against its way it went [rad] after the
+    farthest point, and its hardest ``acceleration`` [rad/s^2] over ``window`` from 50 ms before."""
+
+    speed: float
+    travel: float
+    back: float
+    acceleration: float
+
+
+def braking(trace: FloatArray, since: float, until: float, window: float = 0.01) -> Braking:
+    """:class:`Braking` of a joint's ``trace`` (:func:`bus_joint_traces`) from ``since`` to ``until`` [s]."""
+    step = 0.001
+    t = np.arange(since - 0.05, until, step)
+    q = np.interp(t, trace[:, 0], trace[:, 1])
+    k = round(0.05 / step)
+    half = round(window / step / 2)
+    speed = (q[k + half] - q[k - half]) / window
+    way = np.sign(speed) if abs(speed) > 0.2 else np.sign(q[-1] - q[k])
+    ahead = way * (q[k:] - q[k])
+    back = float(np.max(np.maximum.accumulate(ahead) - ahead)) if way != 0 else float(np.ptp(q[k:]))
+    coarse = q[:: round(window / step)]
+    a = np.diff(coarse, 2) / window**2
+    return Braking(float(speed), float(np.max(ahead)), back, float(np.max(np.abs(a))))
