@@ -31,37 +31,55 @@ that differ, then read ``$$`` again and refuse to start, saying which, if GRBL d
 - ``$100+i``: micro-steps per degree; ``$110+i`` [deg/min] and ``$120+i`` [deg/s^2]: the actuator's
   velocity and acceleration bound (``|M| @`` the joints' limits). GRBL's planner never exceeds
   them on any axis, so each block it runs moves every joint within its limits;
-- ``$11`` junction deviation [deg] = ``min($12x) * T^2 / 8`` with ``T`` the segment time: the speed
-  GRBL keeps through a junction of angle ``phi`` is ``v^2 = 8 a delta / phi^2`` (small angles), so
-  each axis' velocity step at a junction, ``v * phi``, is at most ``a T``: what the acceleration
-  limit gives over one segment. Sharper corners are slowed down, never taken faster. (A
-  trajectory from rest is a straight line in joint space, whose only corners are the micro-step
-  rounding of the segment ends: those GRBL takes at full speed.)
+- ``$11`` junction deviation [deg] = ``min($12x) * (0.1 * 10 ms)^2 / 8``. Where GRBL turns from one
+  line to the next it keeps its speed and turns the velocity at once, so each axis' speed steps
+  by the junction speed times the change of the unit vector; GRBL's junction speed
+  (planner.c: ``v^2 = a delta sin(theta/2) / (1 - sin(theta/2))``, ``a`` the axes' limits along
+  the turn) bounds that step on axis ``i`` by ``sqrt(8 a_i delta)``: here a tenth of what the
+  axis' limit gives in 10 ms (GRBL's own step segment, stepper.c's DT_SEGMENT). Lines last 30 ms
+  at least, so any +-10 ms of the motion holds one junction at most: over any +-10 ms no axis
+  changes speed by more than 1.1 x its limit allows (GRBL's ramps, along each line, keep within
+  ``$12x``). Sharper turns are taken slower, never faster. GRBL prints settings to 3 decimals,
+  so the adapter writes ``$11`` at every start (7 decimals: GRBL reads 8 digits).
 - ``$10=1`` (MPos in reports), ``$13=0`` (reports in "mm"), and with homing ``$22=1``.
 
-Streaming, so that GRBL's own planner executes the plan: the trajectory is resampled into
-segments of about ``segment`` seconds (the last one ends exactly at the final sample's whole-step
-position), each a ``G53 G1`` to its end's whole-step position at its average speed (``F``, deg/min).
-GRBL plans up to 15 blocks ahead and always keeps the distance to stop within them; with 60 ms
-segments that is 0.9 s of motion, far more than the ``v / 2a`` a stop needs (0.25 s at 1 rad/s,
-2 rad/s^2), so it never slows down for want of blocks, while each block's speed changes at
-GRBL's acceleration (at most the limit). (An arm whose ``v / 2a`` exceeds 12 segments gets
-longer segments.) Measured on the emulator with GRBL's planner (tests/test_adapter_grbl.py): a
-2 s move of gupta3 runs 1.056 x its planned time (GRBL reaches each segment's speed at its
-acceleration, so it lags the plan by about one segment's time at the start and at the end), its
-peak acceleration is 1.09 x the limit fitted over 40 ms, where the plan itself, stepped,
-measures 1.11 x (the steps: GRBL's own is 1.0 by construction); a stop ends in about 0.8 x the
-Ruckig stop's time, no joint reversing. Character counting keeps the bytes of unacknowledged
-lines within GRBL's 128-byte receive buffer. A move is done when GRBL reports ``Idle`` (a report
-after the last ``ok``) at the final position, to the step.
+Streaming, so that GRBL's own planner executes the plan within the limits: ``G53 G1`` lines, each to
+a whole-step position next to the trajectory's at some time, the last one to the final sample's
+position; made one at a time as GRBL's buffers take them. Each line ends 30 ms to 0.3 s
+(``segment`` = 60 ms: half of it to five times) after the one before, at a speed (``F``,
+deg/min) with which GRBL, accelerating at its limits, takes the time the trajectory does (from
+the line's average speed up to the trajectory's fastest there), and where GRBL falls behind the
+plan least: the ends are chosen among the corners of the whole-step cells round the trajectory
+every 5 ms, so that where the trajectory goes straight the lines keep GRBL's direction (it takes
+their junctions at full speed), and where it curves the lines are chords within 0.002 rad (and
+a step) of it, at whose corners GRBL slows down to turn within ``$11``. GRBL plans up to 15
+blocks ahead and always keeps the distance to stop within them; 12 of the shortest lines hold
+far more than the ``v / 2a`` a stop needs (0.2 s at 0.8 rad/s, 2 rad/s^2), so it never slows
+down for want of blocks. (An arm whose ``v / 2a`` exceeds 12 of them gets longer ones.)
+Measured on the emulator with GRBL's planner (tests/test_adapter_grbl.py; the executed motion
+before its whole steps, ``GrblEmulator.pieces``, by +-10 ms finite differences), on gupta3: a 2 s
+joint move runs 1.05-1.07 x its planned time (1.01 x with 256 micro-steps), peak acceleration
+1.00-1.02 x the limit (the 60 ms lines of before: 1.03 x the time, 1.88 x the limit, the
+rounding of their ends turning GRBL at full speed); a Cartesian line (curved in joint space)
+1.55-1.58 x its planned time at 1.00 x (before: 1.01 x, 4.1 x), a path through two waypoints
+where every joint reverses 1.65-1.72 x at 1.02 x (before: 1.06 x, 5.2 x). Where a path curves in
+joint space GRBL must nearly stop at each corner to stay within the limits (a move slowed by
+``speed`` takes its planned time, 0.99-1.00 x; random full-speed joint moves 1.07-1.5 x, lines
+1.2-1.3 x). Fitted over 40 ms as before, the 2 s move with 256 micro-steps peaks at 1.08-1.12 x,
+where the plan itself, stepped, measures 1.08-1.11 x. A stop comes to rest within 15 % of the
+time announced, no joint reversing. (``$J=`` jogging runs the same planner, jog.c: the same figures.)
+Character counting keeps the bytes of unacknowledged lines within GRBL's 128-byte receive
+buffer. A move is done when GRBL reports ``Idle`` (a report after the last ``ok``) at the final
+position, to the step.
 
 Stops (an estop, a ``stop``, a fault, a new move while one runs): feed hold ``!`` (GRBL
-decelerates along the path at ``$12x``: no joint reverses), status reports until ``Hold:0``, then a
-soft reset to empty GRBL's buffers (in ``Hold:0`` it keeps the position and raises no alarm; in
-``Hold:1`` it would raise ALARM:3), welcome, ``G21 G90 G94``. A new move runs after that only if it
-starts within ``START_TOL`` of where the arm was held; else it is rejected with the reason (the
-client plans again from rest). An estop while the position is unknown or the adapter faulted
-still sends ``!``.
+decelerates along the path at ``$12x``: no joint reverses; the stop is announced with the time
+that takes, GRBL's reported speed over its deceleration along the line it runs), status reports
+until ``Hold:0``, then a soft reset to empty GRBL's buffers (in ``Hold:0`` it keeps the position
+and raises no alarm; in ``Hold:1`` it would raise ALARM:3), welcome, ``G21 G90 G94``. A new move
+runs after that only if it starts within ``START_TOL`` of where the arm was held; else it is
+rejected with the reason (the client plans again from rest). An estop while the position is
+unknown or the adapter faulted still sends ``!``.
 
 Errors and alarms: ``error:N`` and ``ALARM:N`` are reported with GRBL's documented meanings (its
 doc/csv tables). An error aborts the trajectory (the feed-hold stop above; the position is kept).
@@ -84,23 +102,22 @@ from __future__ import annotations
 
 import collections
 import logging
-import math
 import re
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 
 import numpy as np
 import serial
 import zenoh
 
-from armd.errors import ArmdError, BadRequest, ControllerFault
-from armd.planning import JointState, plan_stop
+from armd.errors import BadRequest, ControllerFault
+from armd.planning import JointState
 from armd.robots import Robot, Stepper
 from armd.robots.units import parse_angle
 
 from .base import START_TOL, actuators_of
 from .serial_port import SerialAdapter
-from .trajectory_message import Command, FloatArray
+from .trajectory_message import Command, FloatArray, motion
 
 log = logging.getLogger(__name__)
 
@@ -108,12 +125,19 @@ RX_BUFFER = 128  # [bytes] GRBL's serial receive buffer
 PLANNER_BLOCKS = 15  # GRBL's look-ahead (BLOCK_BUFFER_SIZE 16, one kept free)
 LINE_MAX = 79  # [characters] GRBL's line buffer
 AXES = "XYZABC"
-SEGMENT = 0.06  # [s] the time of one streamed segment (resampled from the trajectory)
+SEGMENT = 0.06  # [s] the time of one streamed line (a segment of the trajectory), about
+SEGMENT_RANGE = (0.5, 5.0)  # each line's time within these multiples of it (the one where GRBL loses least)
+STEP_WINDOW = 0.01  # [s] GRBL's step segment (stepper.c's DT_SEGMENT): the time scale of its speed changes
+JUNCTION_SHARE = 0.1  # what a junction may change an axis' speed by, of its acceleration limit x STEP_WINDOW
+CHORD_TOL = 0.002  # [rad] of an actuator: how far a segment's straight line may pass from the trajectory
+CANDIDATE_DT = 0.005  # [s] the times at which a segment may end
+FEED_STEPS = 40  # a segment's speed is tried from its average to twice that, in this many steps
 WELCOME_S = 3.0  # [s] how long GRBL may take to print its welcome (an Arduino boots in ~1 s)
 HOMING_S = 120.0  # [s] how long a homing cycle may take
 HOLD_S = 1.0  # [s] a feed hold may take this long more than the planned stop
 STATUS_EVERY = 0.01  # [s] the status requests' period while waiting for GRBL
 _STATUS = re.compile(r"<([A-Za-z]+)(?::(\d))?\|(MPos|WPos):([-\d.,]+)")
+_FEED = re.compile(r"\|FS?:([\d.]+)")  # the speed GRBL moves at [units/min] (F: in builds without a spindle PWM)
 _SETTING = re.compile(r"\$(\d+)=(-?[\d.]+)")
 _MODES = "G21G90G94"  # mm (degrees here), absolute, units per minute: after every reset
 
@@ -185,6 +209,33 @@ def describe(line: str) -> str:
     return f"{line} ({meaning})"
 
 
+class _Lines:
+    """Lines made one at a time as they are taken (from an iterator), the next one made ahead."""
+
+    def __init__(self, lines: Iterable[bytes] = ()) -> None:
+        self._lines = iter(lines)
+        self._next: bytes | None = None
+
+    def peek(self) -> bytes:
+        """The next line (the iterator must not be exhausted: see ``bool``)."""
+        if self._next is None:
+            self._next = next(self._lines)
+        return self._next
+
+    def pop(self) -> bytes:
+        line = self.peek()
+        self._next = None
+        return line
+
+    def __bool__(self) -> bool:
+        if self._next is None:
+            self._next = next(self._lines, None)
+        return self._next is not None
+
+    def clear(self) -> None:
+        self._lines, self._next = iter(()), None
+
+
 class GrblAdapter(SerialAdapter):
     kind = "grbl"
 
@@ -235,6 +286,14 @@ class GrblAdapter(SerialAdapter):
                 stop_time,
             )
         self._spd = np.array([a.steps_per_degree for a in self.steppers])
+        speed, accel = robot.actuators.rate_bounds(robot.limits.velocity, robot.limits.acceleration)
+        self._vmax = np.degrees(speed)  # [deg/s] each axis' velocity bound ($110.. / 60)
+        self._amax = np.degrees(accel)  # [deg/s^2] each axis' acceleration bound ($120..)
+        self._deviation = float(np.min(self._amax)) * (JUNCTION_SHARE * STEP_WINDOW) ** 2 / 8.0  # [deg] $11
+        # [s] the shortest and longest segments: one junction at most in any STEP_WINDOW either side, and
+        # GRBL's blocks still holding a stop's travel
+        self._shortest = max(self.segment * SEGMENT_RANGE[0], 2.0 * STEP_WINDOW, stop_time / (PLANNER_BLOCKS - 3))
+        self._longest = max(self.segment * SEGMENT_RANGE[1], self._shortest)
         if np.any(self._spd > 500.0):  # GRBL reports positions to 0.001 (N_DECIMAL_COORDVALUE_MM)
             log.warning("%s: over 500 steps a degree: GRBL's reports (3 decimals) may be a step off", robot.name)
         self._index = [AXES.index(ax) for ax in self.axes]
@@ -257,7 +316,7 @@ class GrblAdapter(SerialAdapter):
         self._buffer = b""
         self._trouble: str | None = None
         self._pending: collections.deque[int] = collections.deque()  # lengths of unacknowledged lines
-        self._queue: collections.deque[bytes] = collections.deque()  # lines of the running trajectory not sent yet
+        self._queue = _Lines()  # lines of the running trajectory not sent yet
         self._state = "Unknown"
         self._sub: str | None = None  # Hold:0 / Hold:1's digit
         self._fresh = False  # a status report came after the last ok (and after the last feed hold)
@@ -267,7 +326,8 @@ class GrblAdapter(SerialAdapter):
         self._reset_wanted = False  # GRBL said "Reset to continue"
         self._holding: float | None = None  # a feed hold is under way: its deadline
         self._streaming = False
-        self._t_stream = 0.0  # [s] the trajectory's time when its streaming began (after a stop)
+        self._speed = 0.0  # [deg/s] the speed along its path GRBL last reported
+        self._sample = 0  # the running trajectory's sample nearest where GRBL last was
         self._target: np.ndarray | None = None  # [GRBL steps] where the running trajectory ends
         self._v = np.zeros(robot.nq)
         self._a = np.zeros(robot.nq)
@@ -365,6 +425,8 @@ class GrblAdapter(SerialAdapter):
                 self._state, self._sub = m.group(1), m.group(2)
                 vals = [float(v) for v in m.group(4).split(",")]
                 self._steps = np.rint(np.array([vals[i] for i in self._index]) * self._spd).astype(np.int64)
+                feed = _FEED.search(line)
+                self._speed = float(feed.group(1)) / 60.0 if feed else 0.0
                 self._last_status = time.monotonic()
                 self._fresh = True
 
@@ -443,24 +505,19 @@ class GrblAdapter(SerialAdapter):
 
     def wanted_settings(self) -> dict[int, float]:
         """The GRBL settings the adapter sets: ``{n: value}``."""
-        lim, amap = self.robot.limits, self.robot.actuators
         want: dict[int, float] = {10: 1, 13: 0}
-        accels = []
-        speed, accel = amap.rate_bounds(lim.velocity, lim.acceleration)
         for j, i in enumerate(self._index):
-            vmax = math.degrees(float(speed[j]))  # [deg/s] the actuator angle's rate bound
-            amax = math.degrees(float(accel[j]))  # [deg/s^2]
-            accels.append(amax)
             want[100 + i] = float(self._spd[j])
-            want[110 + i] = vmax * 60.0
-            want[120 + i] = amax
-        want[11] = min(accels) * self.segment**2 / 8.0
+            want[110 + i] = float(self._vmax[j]) * 60.0
+            want[120 + i] = float(self._amax[j])
+        want[11] = self._deviation
         if self.homing:
             want[22] = 1
         return want
 
     def _configure(self) -> None:
-        """Write the settings that differ from ``wanted_settings``; read them all back."""
+        """Write the settings that differ from ``wanted_settings`` (and ``$11``, finer than the 3
+        decimals GRBL prints); read them all back."""
         want = self.wanted_settings()
 
         def off(have: dict[int, float], n: int) -> bool:  # GRBL prints 3 decimals
@@ -468,12 +525,14 @@ class GrblAdapter(SerialAdapter):
 
         have = self._settings()
         for n in sorted(want):
-            if off(have, n):
+            if off(have, n) or (n == 11 and want[n] != round(want[n], 3)):
+                # GRBL reads 8 digits at most (read_float): $11 (below 1) with 7 decimals
+                value = (f"{want[n]:.7f}" if n == 11 and want[n] < 1.0 else f"{want[n]:.4f}").rstrip("0").rstrip(".")
                 try:
-                    self._command(f"${n}={want[n]:.4f}".rstrip("0").rstrip("."))
+                    self._command(f"${n}={value}")
                 except ControllerFault as e:
                     raise ControllerFault(
-                        f"GRBL on {self.port} will not take ${n}={want[n]:.4f} ({e.message}): refusing to start"
+                        f"GRBL on {self.port} will not take ${n}={value} ({e.message}): refusing to start"
                     ) from None
         have = self._settings()
         bad = [n for n in sorted(want) if off(have, n)]
@@ -507,26 +566,132 @@ class GrblAdapter(SerialAdapter):
             raise BadRequest(f"GRBL line of {len(line)} characters (at most {LINE_MAX}): {line!r}", field="line")
         return (line + "\n").encode()
 
-    def _segments(self, cmd: Command, start: np.ndarray) -> list[bytes]:
-        """The trajectory resampled: one ``G53 G1`` every ``segment`` seconds (the last one to the
-        final sample, a short tail merged into the segment before), each to its end's whole-step
-        position at its average speed; from GRBL's ``start`` [steps]."""
-        n = len(cmd.times)
-        m = max(1, round(self.segment * cmd.rate_hz))
-        ends = list(range(m, n - 1, m))
-        if ends and (n - 1) - ends[-1] < m / 2:
-            ends.pop()
-        ends.append(n - 1)
-        out = []
-        prev, k_prev = start, 0
-        for k in ends:
-            steps = cmd.commands[k] - self._offset
-            if np.array_equal(steps, prev):
-                continue  # no whole step to make: the next segment takes the time too (a G4 would drain GRBL)
-            dist = float(np.linalg.norm((steps - prev) / self._spd))  # [deg] GRBL's length of the block
-            out.append(self._line(steps, dist / ((k - k_prev) / cmd.rate_hz) * 60.0))
-            prev, k_prev = steps, k
-        return out
+    def _segments(self, cmd: Command, start: np.ndarray) -> Iterator[bytes]:
+        """The trajectory as ``G53 G1`` lines from GRBL's ``start`` [steps], each to a whole-step
+        position next to the trajectory's at some time, the last one to the final sample's
+        position; made one at a time, as GRBL's buffers take them.
+
+        Each line ends between ``_shortest`` and ``_longest`` seconds after the one before, at
+        ``CANDIDATE_DT`` steps of the trajectory's time, at a corner of the whole-step cell round
+        the trajectory's position there, with the speed that has GRBL take the time the
+        trajectory does (:meth:`_feeds`): the end where GRBL falls behind the plan least, about,
+        per second of it; of equals, the one nearest ``segment`` seconds on. A
+        line that passes farther than ``CHORD_TOL`` (and a step) from the trajectory between its
+        ends, that turns from the line before by so little that GRBL takes the junction at full
+        speed (planner.c: a cosine beyond 0.999999) with a step beyond ``JUNCTION_SHARE``, or that
+        leaves a last line shorter than ``_shortest``, is not one (unless none is: then the
+        shortest). So where the trajectory goes straight, the lines' whole-step ends keep GRBL's
+        direction (it takes their junctions at full speed), and where it curves, the lines are
+        long chords, at whose corners GRBL slows down to turn within ``JUNCTION_SHARE``."""
+        times, duration = cmd.times, cmd.duration
+        ideal = self.robot.actuators.command_values(cmd.position) - self._offset  # [steps], unrounded
+        final = cmd.commands[-1] - self._offset
+        tol = np.degrees(CHORD_TOL) * self._spd + 1.0  # [steps] per axis
+        nj = len(self._spd)
+        corners = np.array(np.meshgrid(*[[0, 1]] * nj, indexing="ij")).reshape(nj, -1).T  # (2^nj, nj)
+        pace = np.linalg.norm(np.diff(ideal, axis=0) / self._spd, axis=1) * cmd.rate_hz  # [deg/s] between samples
+
+        def at(t: np.ndarray) -> np.ndarray:  # the trajectory's position [steps] at times t [s]
+            return np.column_stack([np.interp(t, times, ideal[:, j]) for j in range(nj)])
+
+        here, t0 = np.asarray(start, dtype=np.int64), 0.0
+        unit: np.ndarray | None = None  # the last line's direction
+        feed = 0.0  # [deg/s] its speed
+        soonest, latest = self._shortest, self._longest  # [s] after t0
+        while t0 < duration:
+            tc = t0 + np.arange(soonest, latest + 1e-9, CANDIDATE_DT)
+            tc = tc[(tc < duration) & (duration - tc >= self._shortest - 1e-9)]
+            ends = (np.floor(at(tc))[:, None, :] + corners[None]).reshape(-1, nj).astype(np.int64)
+            tc = np.repeat(tc, len(corners))
+            last = duration - t0 <= latest + 1e-9 or not len(tc)
+            if last:  # the last line may end at the final sample
+                ends, tc = np.vstack([ends, final[None]]), np.append(tc, duration)
+            d = (ends - here) / self._spd  # [deg]
+            length = np.linalg.norm(d, axis=1)
+            if not np.any(length > 0):
+                if last:
+                    return  # at the final position
+                # the arm stands still: the next line takes its time too
+                soonest, latest = latest, latest + self._longest
+                continue
+            ends, tc, d, length = ends[length > 0], tc[length > 0], d[length > 0], length[length > 0]
+            u = d / length[:, None]
+            with np.errstate(divide="ignore"):
+                accel = np.min(np.where(u != 0, self._amax / np.abs(u), np.inf), axis=1)  # [deg/s^2] GRBL's, along
+            entry = np.minimum(feed, self._junction_speeds(unit, u)) if unit is not None else np.zeros(len(u))
+            way = (at(np.minimum(tc + CANDIDATE_DT, duration)) - at(tc - CANDIDATE_DT)) / self._spd
+            far = np.linalg.norm(way, axis=1)
+            then = far / (2.0 * CANDIDATE_DT)  # [deg/s] the trajectory's speed at the end
+            onward = np.where(far[:, None] > 0, way / np.maximum(far, 1e-12)[:, None], u)  # and its way there
+            k0 = max(int(np.searchsorted(times, t0, side="right")) - 1, 0)
+            fastest = np.maximum.accumulate(pace[k0:])  # [deg/s] the trajectory's fastest from t0 on
+            k1 = np.clip(np.searchsorted(times, tc) - 1 - k0, 0, len(fastest) - 1)
+            speed, took = self._feeds(length, tc - t0, entry, then, fastest[k1], accel)
+            # the time GRBL falls behind, with its slowing down at the next junction (toward the way there)
+            lost = took - (tc - t0) + self._slowing(u, onward, speed, accel)
+            if unit is not None:  # (slowing to the junction speed, at the end of the line before)
+                lost += (feed - entry) ** 2 / (2.0 * accel * max(feed, 1e-9))
+            # the trajectory between the ends, and how far each line passes from it [steps]
+            inner = times[(times > t0) & (times < tc.max())]
+            w = (at(inner) - here) / self._spd  # [deg]
+            off = (w[None, :, :] - (w @ u.T).T[:, :, None] * u[:, None, :]) * self._spd
+            inside = inner[None, :] < tc[:, None]
+            fits = ~np.any(inside[:, :, None] & (np.abs(off) > tol), axis=(1, 2))
+            if unit is not None:  # GRBL takes an all but straight junction at full speed: within the share?
+                straight = -(u @ unit) < -0.999999
+                step = np.minimum(speed, feed)[:, None] * np.abs(u - unit)  # [deg/s] per axis
+                fits &= ~(straight & np.any(step > JUNCTION_SHARE * STEP_WINDOW * self._amax, axis=1))
+            score = np.where(fits, lost / (tc - t0), np.inf)
+            best = int(np.lexsort((np.abs(tc - t0 - self.segment), score))[0]) if fits.any() else int(np.argmin(tc))
+            yield self._line(ends[best], speed[best] * 60.0)
+            here, t0, unit, feed = ends[best], float(tc[best]), u[best], float(speed[best])
+            soonest, latest = self._shortest, self._longest
+
+    @staticmethod
+    def _feeds(
+        length: np.ndarray, span: np.ndarray, entry: np.ndarray, then: np.ndarray, top: np.ndarray, accel: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Each candidate line's speed [deg/s], and the time [s] GRBL takes on it, about: a line of
+        ``length`` [deg] that the trajectory covers in ``span`` [s], entered at ``entry`` [deg/s]
+        and left toward the trajectory's speed ``then``, GRBL accelerating and slowing at
+        ``accel`` [deg/s^2]. The slowest speed, from the average up to the trajectory's fastest
+        there (``top``), with which GRBL takes ``span``; else the one with which it takes least."""
+        average = length / span
+        best, took = average.copy(), np.full(len(length), np.inf)
+        done = np.zeros(len(length), dtype=bool)
+        for k in range(FEED_STEPS + 1):
+            feed = np.minimum(average * (1.0 + k / FEED_STEPS), np.maximum(top, average))
+            t = length / feed + ((feed - np.minimum(entry, feed)) ** 2 + (feed - np.minimum(then, feed)) ** 2) / (
+                2.0 * accel * feed
+            )
+            better = ~done & ((t <= span) | (t < took))
+            best, took = np.where(better, feed, best), np.where(better, t, took)
+            done |= t <= span
+        return best, took
+
+    def _slowing(self, before: np.ndarray, after: np.ndarray, speed: np.ndarray, accel: np.ndarray) -> np.ndarray:
+        """The time [s] GRBL loses, about, slowing from ``speed`` [deg/s] to its junction speed
+        between ``before`` and ``after`` and back, at ``accel`` [deg/s^2]."""
+        dip = np.maximum(speed - self._junction_speeds(before, after), 0.0)
+        return dip**2 / (accel * np.maximum(speed, 1e-9))
+
+    def _junction_speeds(self, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+        """The speed [deg/s] GRBL keeps through the junction of lines ``before`` and ``after``
+        (unit vectors in degrees, broadcast), from ``$11``: planner.c's plan_buffer_line, without
+        its rule that takes an all but straight junction (cosine beyond 0.999999) at any speed.
+        Its velocity step per axis, this speed times the change of the unit vector, is then
+        within ``JUNCTION_SHARE`` of what the axis' acceleration limit gives in ``STEP_WINDOW``."""
+        before, after = np.broadcast_arrays(np.atleast_2d(before), np.atleast_2d(after))
+        cos = -np.sum(before * after, axis=1)
+        sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos), 0.0, 1.0))
+        turn = after - before
+        size = np.linalg.norm(turn, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            share = np.abs(turn / size[:, None])
+            accel = np.min(np.where(share > 0, self._amax / share, np.inf), axis=1)  # limit_value_by_axis_maximum
+            speed = np.sqrt(accel * self._deviation * sin_half / (1.0 - sin_half))
+        speed = np.where((sin_half >= 1.0) | (size == 0.0), np.inf, speed)  # straight on
+        return np.where(cos > 0.999999, 0.0, speed)  # a reversal
 
     # -- stopping ------------------------------------------------------------------------
 
@@ -567,25 +732,37 @@ class GrblAdapter(SerialAdapter):
 
     def admit(self, cmd: Command) -> None:
         """A trajectory whose lines GRBL could not take (over 79 characters) is refused."""
-        widest = -np.max(np.abs(cmd.commands - self._offset), axis=0)  # the most characters a line may need
+        widest = -np.max(np.abs(cmd.commands - self._offset), axis=0) - 1  # the most characters a line may need
         try:
             self._line(widest, 99999.0)
         except BadRequest as e:
             raise BadRequest(f"{self.robot.name}: {e.message}", field="position") from None
 
     def stop_command(self, ident: str) -> Command:
-        """A stop of kind ``stop``: ``execute`` runs it as GRBL's feed hold; its samples are the
-        Ruckig stop from the adapter's state (how long the stop should take)."""
+        """A stop of kind ``stop``: ``execute`` runs it as GRBL's feed hold; its samples are that
+        hold as GRBL runs it (:meth:`hold_duration`), so its duration is what the stop takes."""
         with self._lock:
             rate = self._cmd.rate_hz if self._cmd is not None else 50.0
-        state = self.measure()
-        try:
-            traj = plan_stop(self.robot, state, rate_hz=rate, clamp=True)
-            times, pos = traj.times, traj.position
-        except ArmdError:  # the position is unknown or outside the limits: a hold, with no plan to compare
-            times, pos = np.zeros(1), state.position[None, :]
-        z = np.zeros_like(pos)
-        return Command(ident, "stop", rate, times, pos, z, z.copy(), np.zeros(pos.shape, dtype=np.int64))
+        state = self.estimate() if self.fault else self.measure()  # (nothing asked of a faulty board)
+        duration = self.hold_duration()
+        t = np.append(np.arange(0.0, duration, 1.0 / rate), duration) if duration > 0.0 else np.zeros(1)
+        v = state.velocity
+        pos = state.position + np.outer(t - t**2 / (2.0 * max(duration, 1e-9)), v)  # to rest along the path
+        vel, acc = motion(pos, 1.0 / rate)
+        return Command(ident, "stop", rate, t, pos, vel, acc, np.zeros(pos.shape, dtype=np.int64))
+
+    def hold_duration(self) -> float:
+        """How long a feed hold takes from now [s], about: GRBL slows along the line it runs
+        (the arm's direction now, :meth:`estimate`) from the speed it last reported, at that
+        line's acceleration (the axes' ``$120``.. along it). 0 at rest."""
+        state = self.estimate()
+        rates = np.degrees(self.robot.actuators.jacobian(state.position) @ state.velocity)  # [deg/s] per axis
+        speed = float(np.linalg.norm(rates))
+        if speed <= 0.0 or self._speed <= 0.0:
+            return 0.0
+        share = np.abs(rates) / speed
+        accel = float(np.min(self._amax[share > 0] / share[share > 0]))  # [deg/s^2] limit_value_by_axis_maximum
+        return self._speed / accel
 
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
         self._pump()
@@ -603,11 +780,10 @@ class GrblAdapter(SerialAdapter):
                 return True
         if not self._streaming:
             return self._start(cmd, t)
-        k = min(max(int((t - self._t_stream) * cmd.rate_hz), 0), len(cmd.times) - 1)
-        self._v, self._a = cmd.velocity[k].copy(), cmd.acceleration[k].copy()
+        self._v, self._a = self._motion(cmd)
         # send ahead while GRBL's receive buffer has room (character counting)
-        while self._queue and sum(self._pending) + len(self._queue[0]) <= RX_BUFFER:
-            line = self._queue.popleft()
+        while self._queue and sum(self._pending) + len(self._queue.peek()) <= RX_BUFFER:
+            line = self._queue.pop()
             self._pending.append(len(line))
             self._write(line)
         if self._queue or self._pending or not self._fresh or self._state != "Idle":
@@ -643,9 +819,9 @@ class GrblAdapter(SerialAdapter):
             self.event("rejected", id=cmd.id, reason=reason)
             return False
         self._target = cmd.commands[-1] - self._offset
-        self._queue = collections.deque(self._segments(cmd, self._steps))
+        self._queue = _Lines(self._segments(cmd, self._steps))
         self._streaming = True
-        self._t_stream = t
+        self._sample = 0
         return self.execute(cmd, t, False)
 
     def hold(self) -> None:
@@ -658,9 +834,22 @@ class GrblAdapter(SerialAdapter):
         self._v = np.zeros(self.robot.nq)
         self._a = np.zeros(self.robot.nq)
 
+    def _motion(self, cmd: Command) -> tuple[FloatArray, FloatArray]:
+        """The arm's velocity and acceleration while ``cmd`` streams, about: the trajectory's at its
+        sample nearest where GRBL is (on from the last one's, within a second of it), the velocity
+        scaled to the speed GRBL reports (GRBL runs behind the plan, slower at corners)."""
+        here = self._joints(self._steps)
+        ahead = cmd.position[self._sample : self._sample + int(cmd.rate_hz) + 1]
+        self._sample += int(np.argmin(np.linalg.norm(ahead - here, axis=1)))
+        v, a = cmd.velocity[self._sample], cmd.acceleration[self._sample]
+        rates = np.degrees(self.robot.actuators.jacobian(here) @ v)  # [deg/s] per axis, as planned
+        planned = float(np.linalg.norm(rates))
+        return (v * (self._speed / planned) if planned > 0.0 else np.zeros_like(v)), a.copy()
+
     def measure(self) -> JointState:
         """The position GRBL last reported, through the offset (a status report is asked for at
-        every call: the control loop parses the answer); velocity and acceleration as planned."""
+        every call: the control loop parses the answer); velocity and acceleration as planned
+        where GRBL is, the velocity at the speed GRBL reports (:meth:`_motion`)."""
         if time.monotonic() - self._asked >= STATUS_EVERY:
             self._write(b"?")
             self._asked = time.monotonic()

@@ -1,7 +1,8 @@
 """Service + GRBL adapter + GRBL emulator on a pseudo-terminal: the code path a user's
 /dev/ttyACM0 takes, end to end: an unknown position until an operator says where the arm is,
-machine coordinates, GRBL's settings, errors and alarms, stops by feed hold, and (on the
-emulator with GRBL's planner) the executed timing and acceleration of a move."""
+machine coordinates, GRBL's settings, errors and alarms, stops by feed hold (announced with the
+time they take), and (on the emulator with GRBL's planner) the executed timing and acceleration
+of moves, where GRBL turns from one streamed line to the next too."""
 
 from __future__ import annotations
 
@@ -38,14 +39,17 @@ def grbl_steps(arm: robots.Robot, emu: GrblEmulator) -> np.ndarray:
 
 
 class Writes:
-    """Every byte the adapter writes to GRBL, recorded (real-time bytes are not in the emulator's ``lines``)."""
+    """Every byte the adapter writes to GRBL, recorded (real-time bytes are not in the emulator's
+    ``lines``), and when each write was made (``time.monotonic``, the emulator's clock)."""
 
     def __init__(self, adapter: GrblAdapter) -> None:
         self.data = bytearray()
+        self.times: list[tuple[float, bytes]] = []
         original = adapter._write
 
         def write(data: bytes) -> None:
             self.data += data
+            self.times.append((time.monotonic(), data))
             original(data)
 
         adapter._write = write  # type: ignore[method-assign]
@@ -443,3 +447,115 @@ def test_homing_sets_the_position_from_home_pose(
             assert np.allclose(q, home, atol=arm.actuators.actuators[0].resolution)
         finally:
             adapter.close()
+
+
+def exact_motion(arm: robots.Robot, emu: GrblEmulator, times: np.ndarray) -> np.ndarray:
+    """The arm's actuator angles [deg] at ``times`` [s, the emulator's clock], from the emulator's
+    exact motion (:attr:`GrblEmulator.pieces`: GRBL's planner and stepper profiles before their
+    whole steps), held before its first piece and after its last."""
+    pieces = emu.pieces
+    cols = [emu.axes.index(a.axis) for a in arm.actuators.actuators]  # type: ignore[union-attr]
+    start = np.array([p[0] for p in pieces])
+    k = np.clip(np.searchsorted(start, times, side="right") - 1, 0, None)
+    tau = np.clip(times - start[k], 0.0, np.array([p[1] for p in pieces])[k])[:, None]
+    p0, v0, a0 = (np.array([[p[i][c] for c in cols] for p in pieces])[k] for i in (2, 3, 4))
+    return p0 + v0 * tau + 0.5 * a0 * tau**2
+
+
+def executed_acceleration(arm: robots.Robot, emu: GrblEmulator, h: float = 0.01, dt: float = 0.0005) -> np.ndarray:
+    """Per actuator, the largest acceleration of the executed motion over finite differences of
+    +-``h`` [s] (every ``dt`` [s]), as a fraction of its limit: where GRBL turns from one line to
+    the next, each axis' speed steps at once, and a step of ``dv`` reads ``dv / h`` here."""
+    pieces = emu.pieces
+    t = np.arange(pieces[0][0] - h, pieces[-1][0] + pieces[-1][1] + h, dt)
+    p = exact_motion(arm, emu, t)
+    k = round(h / dt)
+    acc = (p[2 * k :] - 2.0 * p[k:-k] + p[: -2 * k]) / h**2
+    return np.max(np.abs(acc), axis=0) / actuator_limits_deg(arm)[1]
+
+
+TURNS: dict[str, tuple[object, dict[str, Any]]] = {
+    "line": ({"target": [0.16, 0.10, 0.02]}, {"path": "line"}),  # a straight tool line: curved in joint space
+    "via": ([-0.4, 1.3, -1.9], {"via": [[0.6, 1.2, -1.2], [0.9, 1.7, -2.0]]}),  # every joint reverses
+}
+
+
+@pytest.mark.parametrize("kind", sorted(TURNS))
+def test_grbl_turns_between_lines_within_every_axis_acceleration(
+    client: ArmClient, service: object, adapter_session: zenoh.Session, kind: str
+) -> None:
+    """Moves whose joints change direction (a Cartesian line, a path through waypoints where
+    every joint reverses): where GRBL turns from one streamed line to the next, each axis' speed
+    steps at once (GRBL's junction deviation). Measured on the executed motion by +-10 ms finite
+    differences, no axis accelerates beyond 1.10 x its limit (at most a tenth of a limit's
+    10 ms at a junction, ``$11``); GRBL slows down at the corners of the curves for it, and the
+    arm ends exactly at the goal."""
+    arm = robots.load(ARM)
+    goal, options = TURNS[kind]
+    with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True):
+        wait_state(client, source="adapter", homed=True)
+        emu.clear_trace()
+        reply = client.move(ARM, goal, wait=True, wait_timeout=30, **options)
+        wait_for(lambda: emu.state == "Idle", timeout=5, what="GRBL idle")
+        pieces = emu.pieces
+        executed = pieces[-1][0] + pieces[-1][1] - pieces[0][0]
+        peaks = executed_acceleration(arm, emu)
+        slow = executed_acceleration(arm, emu, h=0.1)  # over +-100 ms
+        print(
+            f"\n{kind}: planned {reply.duration:.3f} s, executed {executed:.3f} s ({executed / reply.duration:.3f}x); "
+            f"peak acceleration / limit per axis over +-10 ms: {np.round(peaks, 3).tolist()}"
+        )
+        assert np.all(peaks <= 1.10), peaks
+        assert np.max(slow) >= 0.2  # the arm does accelerate (a measure that read 0 would prove nothing)
+        assert executed <= 2.5 * reply.duration  # (slower: GRBL turns each corner of a curve slowly)
+        assert np.array_equal(grbl_steps(arm, emu), actuator_steps(arm, reply.goal) - actuator_steps(arm, arm.neutral))
+
+
+def test_a_stop_is_announced_with_the_time_grbl_takes_to_hold(
+    client: ArmClient, service: object, adapter_session: zenoh.Session
+) -> None:
+    """GRBL runs behind the plan (it slows at the corners of a curve): a stop after the plan's
+    time is over, GRBL still moving, is announced with the feed hold's time (GRBL's speed over
+    its deceleration along the path), which is about the time the arm takes to come to rest."""
+    arm = robots.load(ARM)
+    with GrblEmulator() as emu, running(service, adapter_session, emu, assume_rest=True) as adapter:
+        wait_state(client, source="adapter", homed=True)
+        writes = Writes(adapter)
+        events, sub = collect(client, f"armd/{ARM}/events")
+        try:
+            goal, options = TURNS["line"]
+            emu.clear_trace()
+            began = time.monotonic()
+            reply = client.move(ARM, goal, **options)
+            wait_for(lambda: emu.state == "Run", timeout=5, what="GRBL running")
+
+            def speed() -> float:  # [deg/s] GRBL's along its path, at its last piece's start
+                pieces = emu.pieces
+                return float(np.linalg.norm(pieces[-1][3])) if pieces else 0.0
+
+            wait_for(
+                lambda: (time.monotonic() - began > reply.duration + 0.1 and speed() > 25.0) or emu.state == "Idle",
+                timeout=20,
+                what="GRBL moving fast after the plan's time",
+            )
+            assert emu.state != "Idle", "GRBL finished within the plan's time: nothing to check"
+            client.stop(ARM)
+
+            def stop() -> dict[str, Any] | None:
+                return next((e for e in events if e["event"] == "accepted" and e.get("trajectory") == "stop"), None)
+
+            wait_for(lambda: stop() is not None, what="the stop accepted")
+            accepted = stop()
+            assert accepted is not None
+            wait_for(lambda: any(e["event"] == "done" and e["id"] == accepted["id"] for e in events), what="its end")
+        finally:
+            sub.undeclare()  # type: ignore[attr-defined]
+        bang = next(t for t, data in writes.times if b"!" in data)
+        pieces = emu.pieces
+        rest = pieces[-1][0] + pieces[-1][1]
+        took, announced = rest - bang, float(accepted["duration"])
+        print(f"\nstop: announced {announced:.3f} s, the arm at rest {took:.3f} s after the hold")
+        assert announced > 0.05  # (a stop planned from the plan's state there, at rest, would say 0.02)
+        assert 0.4 * took - 0.05 <= announced <= 2.0 * took + 0.1  # (GRBL's speed changes while the stop is sent)
+        goal_steps = actuator_steps(arm, reply.goal) - actuator_steps(arm, arm.neutral)
+        assert np.any(grbl_steps(arm, emu) != goal_steps)  # held short of the goal

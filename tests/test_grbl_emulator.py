@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import itertools
 import math
 import random
 import signal
@@ -131,6 +132,9 @@ def test_settings_print_store_and_scale_the_steps(grbl: Open) -> None:
     assert command(ser, "$100=8.8889") == ["ok"]
     assert emu.settings[100] == 8.8889
     assert "$100=8.889" in command(ser, "$$")
+    assert command(ser, "$11=0.00001432") == ["ok"]  # GRBL reads 8 digits, leading zeros too (read_float)
+    assert emu.settings[11] == 1.43e-5
+    assert "$11=0.000" in command(ser, "$$")  # and prints 3 decimals
     for line, answer in [
         ("$100=abc", "error:2"),
         ("$7=1", "error:3"),
@@ -245,6 +249,33 @@ def test_a_corner_is_taken_at_the_junction_deviation_speed(grbl: Open) -> None:
     assert emu.state == "Run"
     clock.now = start + 2 * t_corner * 1.005
     assert emu.state == "Idle" and emu.position() == {"X": 10.0, "Y": 10.0, "Z": 0.0}
+
+
+def test_the_exact_motion_is_pieces_of_the_profiles_turning_at_once_at_a_junction(grbl: Open) -> None:
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock)
+    ser.write(b"G1 X10 F480\nG1 Y10\n")  # as above: the corner at 0.584 units/s
+    assert [readline(ser), readline(ser)] == ["ok", "ok"]
+    advance(emu, clock, 4.0, 0.003)
+    assert emu.state == "Idle"
+    pieces = emu.pieces
+    for (t0, dt, p0, v0, a0), (t1, _, p1, v1, _) in itertools.pairwise(pieces):
+        assert t1 == pytest.approx(t0 + dt, abs=1e-9)  # one after the other, no gap
+        end = [p + v * dt + 0.5 * a * dt * dt for p, v, a in zip(p0, v0, a0, strict=True)]
+        assert end == pytest.approx(list(p1), abs=1e-9)  # the position is continuous
+        assert all(abs(a) in (0.0, pytest.approx(10.0)) for a in a0)  # GRBL's acceleration, or none
+        speed = [math.hypot(*(v + a * dt for v, a in zip(v0, a0, strict=True))), math.hypot(*v1)]
+        assert speed[0] == pytest.approx(speed[1], abs=1e-9)  # the speed too: only the direction may turn
+    t0, dt, p0, v0, a0 = pieces[-1]
+    assert [p + v * dt + 0.5 * a * dt * dt for p, v, a in zip(p0, v0, a0, strict=True)] == pytest.approx([10, 10, 0])
+    sin_half = math.sqrt(0.5)
+    vj = math.sqrt(10 * math.sqrt(2) * 0.010 * sin_half / (1 - sin_half))
+    corner = next(i for i, p in enumerate(pieces) if p[3][1] > 0.0)  # the first piece along Y
+    before = [v + a * pieces[corner - 1][1] for v, a in zip(pieces[corner - 1][3], pieces[corner - 1][4], strict=True)]
+    assert before == pytest.approx([vj, 0.0, 0.0], abs=1e-6)
+    assert list(pieces[corner][3]) == pytest.approx([0.0, vj, 0.0], abs=1e-6)  # each axis' speed steps by vj
+    emu.clear_trace()
+    assert emu.pieces == [] and emu.trace == []
 
 
 def stream(emu: GrblEmulator, ser: serial.Serial, clock: FakeClock, lines: list[bytes], step: float) -> list[float]:

@@ -79,12 +79,13 @@ Covered:
   kept. A line the parser was inside of at a reset is answered ``ok`` (gc_execute_line returns).
 - Lines end with ``\\n`` or ``\\r``, each of which ends a line: ``\\r\\n`` is a line and an empty
   line, answered ``ok`` twice, as GRBL does. Spaces, ``(...)`` and ``;`` comments are dropped and
-  letters upcased; a line longer than 79 characters is ``error:11``. Every line is answered once,
-  ``ok`` or ``error:N``, when the parser has taken it: a motion once it is in the planner, not
-  when it is done. With the planner full the parser waits, and the bytes behind it wait in the
-  ``rx_buffer``-byte receive buffer; bytes arriving when that is full are lost (``overflows``), as
-  on the Arduino. Hence character counting: a host whose unanswered lines never exceed 128 bytes
-  never loses any.
+  letters upcased; a line longer than 79 characters is ``error:11``. A number counts 8 digits at
+  most, leading zeros too (nuts_bolts.c's read_float: ``$11=0.00001432`` is 0.0000143). Every
+  line is answered once, ``ok`` or ``error:N``, when the parser has taken it: a motion once it is
+  in the planner, not when it is done. With the planner full the parser waits, and the bytes
+  behind it wait in the ``rx_buffer``-byte receive buffer; bytes arriving when that is full are
+  lost (``overflows``), as on the Arduino. Hence character counting: a host whose unanswered
+  lines never exceed 128 bytes never loses any.
 - G-code (gcode.c): ``G0``, ``G1 ... F`` (units/min), ``G4 P<s>``, ``G10``, ``G28``/``G30`` (rapid,
   through the block's point if any, to the stored position on the axes named, or all),
   ``G28.1``/``G30.1`` (store the position), ``G53``, ``G54``-``G59``, ``G90``/``G91``, ``G91.1``,
@@ -110,10 +111,13 @@ Covered:
   limits is error 15 (no alarm). G-code lines while jogging are error 9. ``0x85`` or ``!`` cancel
   it: a deceleration, then the planner is flushed and the state is Idle.
 - For tests: ``trace`` (clock time, physical position per axis) at every pass of the machine
-  model while moving (the thread's 2 ms poll, and every query) and at each block's end, cleared
-  by ``clear_trace()``; ``inject_alarm(code)`` (other codes: motion stops, the planner empties, a
-  waiting line is ``error:9``), ``inject_error_on_next_line(code)``, and ``responding = False``
-  (silent: reads and drops all); ``settings`` and ``startup_lines`` to start with (``{22: 1}``).
+  model while moving (the thread's 2 ms poll, and every query) and at each block's end, and
+  ``pieces``, the exact motion before its whole steps (pieces of constant acceleration, each
+  with its position, velocity and acceleration per axis: where GRBL turns from one block to the
+  next, each axis' speed steps at once), both cleared by ``clear_trace()``; ``inject_alarm(code)``
+  (other codes: motion stops, the planner empties, a waiting line is ``error:9``),
+  ``inject_error_on_next_line(code)``, and ``responding = False`` (silent: reads and drops all);
+  ``settings`` and ``startup_lines`` to start with (``{22: 1}``).
 
 Where real GRBL differs, or may:
 
@@ -165,6 +169,7 @@ WELCOME = f"\r\nGrbl {VERSION} ['$' for help]\r\n"
 BOOT_S = 0.1  # [s] wall time from opening the port to the welcome (a real Arduino takes ~1 s)
 LINE_MAX = 79  # [characters] GRBL's line buffer, after spaces and comments are dropped
 MAX_STEP_RATE = 30000  # [steps/s] the step rate GRBL refuses settings beyond (error:12)
+MAX_INT_DIGITS = 8  # nuts_bolts.h: the digits of a number GRBL reads
 AXIS_LETTERS = "XYZABC"
 COORD_NAMES = ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30")  # GRBL's EEPROM coordinate slots
 MINIMUM_FEED_RATE = 1.0 / 60.0  # [units/s] config.h: 1 mm/min, the slowest nominal speed
@@ -249,6 +254,23 @@ _M_GROUPS = {
 }
 
 
+def _read_float(text: str) -> float:
+    """nuts_bolts.c's read_float: at most MAX_INT_DIGITS (8) digits count, leading zeros too;
+    further digits are dropped (after the point) or scale the value by ten (before it)."""
+    digits, scale, point, kept = 0, 0, False, ""
+    for c in text.lstrip("+-"):
+        if c == ".":
+            point = True
+        elif digits < MAX_INT_DIGITS:
+            digits += 1
+            kept += c
+            scale -= point
+        elif not point:
+            scale += 1
+    value = float(f"{kept or 0}e{scale}")
+    return -value if text.startswith("-") else value
+
+
 def _round_steps(x: float) -> int:
     """C's lround: to the nearest integer, halves away from zero (GRBL's rounding of targets to steps)."""
     return int(math.copysign(math.floor(abs(x) + 0.5), x))
@@ -261,6 +283,9 @@ def _limit_by_axis_maximum(max_value: list[float], unit: list[float]) -> float:
         if u != 0.0:
             limit = min(limit, abs(m / u))
     return limit
+
+
+_Piece = tuple[float, float, tuple[float, ...], tuple[float, ...], tuple[float, ...]]  # see GrblEmulator.pieces
 
 
 @dataclass
@@ -346,7 +371,7 @@ def _words(line: str) -> Iterator[tuple[str, float] | int]:
             yield 2
             return
         i = m.end()
-        yield letter, float(m.group())
+        yield letter, _read_float(m.group())
 
 
 class GrblEmulator(PtyEmulator):
@@ -429,6 +454,7 @@ class GrblEmulator(PtyEmulator):
         self.max_rx_used = 0  # [bytes] the most ever waiting in the receive buffer
         self.responding = True  # False: read and drop everything, answer nothing
         self._trace: deque[tuple[float, tuple[float, ...]]] = deque(maxlen=trace_max)
+        self._pieces: deque[_Piece] = deque(maxlen=trace_max)
         self._lock = threading.RLock()
         self._tx = bytearray()
         self._inject_error: int | None = None
@@ -478,10 +504,23 @@ class GrblEmulator(PtyEmulator):
         with self._lock:
             return list(self._trace)
 
+    @property
+    def pieces(self) -> list[_Piece]:
+        """The exact motion since ``clear_trace()``, as the planner and the stepper profiles make it
+        (before its rounding to whole steps): pieces of constant acceleration along a block, each
+        (clock time of its start [s], its duration [s], the physical position per axis at its start
+        [units], the velocity per axis at its start [units/s], the acceleration per axis
+        [units/s^2]), in time order; the last ``trace_max``. Where one block hands over to the
+        next the velocity keeps its speed and turns to the new block's direction at once, as in
+        GRBL. (A homing approach's axes stopped by their switches are not in it.) A copy."""
+        with self._lock:
+            return list(self._pieces)
+
     def clear_trace(self) -> None:
-        """Forget the recorded motion trace."""
+        """Forget the recorded motion trace and pieces."""
         with self._lock:
             self._trace.clear()
+            self._pieces.clear()
 
     @property
     def state(self) -> str:
@@ -625,7 +664,7 @@ class GrblEmulator(PtyEmulator):
                     self._homing_next()
             elif self._moving():
                 n = len(self._blocks)
-                used += self._ramp(left)
+                used += self._ramp(left, t0 + used / self.time_scale)
                 if len(self._blocks) != n:  # a block boundary: trace it at its own time
                     self._trace.append((t0 + used / self.time_scale, tuple(self._physical())))
             elif self._dwell_left is not None and self._synced():
@@ -641,8 +680,9 @@ class GrblEmulator(PtyEmulator):
 
     # -- the stepper (stepper.c's st_prep_buffer, integrated exactly) ---------------------------------
 
-    def _ramp(self, left: float) -> float:
-        """Run the running block for up to ``left`` [machine s] within its current ramp; return the time used."""
+    def _ramp(self, left: float, at: float) -> float:
+        """Run the running block for up to ``left`` [machine s] within its current ramp, from clock
+        time ``at`` [s]; return the time used."""
         b = self._blocks[0]
         if self._prof is None:
             self._load_profile(b)
@@ -663,6 +703,7 @@ class GrblEmulator(PtyEmulator):
             t = d / max(v, 1e-12) if acc == 0.0 else (math.sqrt(max(v * v + 2.0 * acc * d, 0.0)) - v) / acc
         else:
             t = 2.0 * d / (v + v_end) if v + v_end > 0.0 else 0.0  # at rest with nowhere to go: done
+        self._piece(b, at, min(t, left), v, acc)
         if t > left:
             dd = min(max(v * left + 0.5 * acc * left * left, 0.0), d)
             b.millimeters = rem - dd
@@ -686,6 +727,27 @@ class GrblEmulator(PtyEmulator):
         else:
             self._block_done()
         return t
+
+    def _piece(self, b: _Block, at: float, duration: float, v: float, acc: float) -> None:
+        """Record a piece of the exact motion: block ``b`` from where it is now, for ``duration``
+        [machine s] from clock time ``at``, at speed ``v`` [units/s] and acceleration ``acc`` along it."""
+        if duration <= 0.0:
+            return
+        f = (b.length - b.millimeters) / b.length
+        unit = [(t - s) / self._spu(i) / b.length for i, (s, t) in enumerate(zip(b.start, b.target, strict=True))]
+        k = self.time_scale
+        self._pieces.append(
+            (
+                at,
+                duration / k,
+                tuple(
+                    (o + s + f * (t - s)) / self._spu(i)
+                    for i, (o, s, t) in enumerate(zip(self._origin, b.start, b.target, strict=True))
+                ),
+                tuple(u * v * k for u in unit),
+                tuple(u * acc * k * k for u in unit),
+            )
+        )
 
     def _load_profile(self, b: _Block) -> None:
         """st_prep_buffer's (re)computation of the running block's velocity profile."""
@@ -1502,7 +1564,7 @@ class GrblEmulator(PtyEmulator):
             return 2
         if m.group(4):
             return 3
-        return self._store_setting(int(float(m.group(1))), float(m.group(3)))
+        return self._store_setting(int(_read_float(m.group(1))), _read_float(m.group(3)))
 
     def _restore(self, what: str) -> int | None:
         """``$RST=$`` (settings), ``$RST=#`` (coordinate data), ``$RST=*`` (both), then GRBL resets itself."""
