@@ -25,7 +25,8 @@ Then the bus servos (bench/bus_servo_bench.py): the Feetech and Dynamixel adapte
 trip against the SDK's own sync read, the bus cycles a second, the tracking error and the
 stop's latency; and their fault table (bench/bus_faults_bench.py): each fault injected mid-move
 at full speed, when it was noticed, how far the arm ran on and back, how hard it braked, the
-state's rate meanwhile.
+state's rate meanwhile. GRBL's fault table (bench/grbl_faults_bench.py) the same, for an
+operator's stop and GRBL's alarms.
 
 Run: ``.venv/bin/python bench/adapters.py [--runs 3] [--only ssc32|grbl|bus]``. Prints Markdown tables.
 """
@@ -336,6 +337,10 @@ def main() -> None:
             f"{cell(res['stop'])} | {int(max(res['held'])) if res['held'] else '-'} |"
         )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
+    if args.only in (None, "grbl") and args.condition is None:
+        from grbl_faults_bench import grbl_fault_rows, print_grbl_fault_table
+
+        print_grbl_fault_table(grbl_fault_rows(args.runs))
     if args.only in (None, "bus"):
         bus_tables(args.runs)
 

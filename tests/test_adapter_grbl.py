@@ -18,7 +18,7 @@ import zenoh
 
 from armd import robots
 from armd.adapters.emulators.grbl import GrblEmulator
-from armd.adapters.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_motion, span
+from armd.adapters.emulators.measure import actuator_limits_deg, fitted_peaks, grbl_exact_motion, grbl_motion, span
 from armd.adapters.grbl import GrblAdapter
 from armd.clients import ArmClient
 from armd.errors import ControllerFault, ServiceError
@@ -449,26 +449,13 @@ def test_homing_sets_the_position_from_home_pose(
             adapter.close()
 
 
-def exact_motion(arm: robots.Robot, emu: GrblEmulator, times: np.ndarray) -> np.ndarray:
-    """The arm's actuator angles [deg] at ``times`` [s, the emulator's clock], from the emulator's
-    exact motion (:attr:`GrblEmulator.pieces`: GRBL's planner and stepper profiles before their
-    whole steps), held before its first piece and after its last."""
-    pieces = emu.pieces
-    cols = [emu.axes.index(a.axis) for a in arm.actuators.actuators]  # type: ignore[union-attr]
-    start = np.array([p[0] for p in pieces])
-    k = np.clip(np.searchsorted(start, times, side="right") - 1, 0, None)
-    tau = np.clip(times - start[k], 0.0, np.array([p[1] for p in pieces])[k])[:, None]
-    p0, v0, a0 = (np.array([[p[i][c] for c in cols] for p in pieces])[k] for i in (2, 3, 4))
-    return p0 + v0 * tau + 0.5 * a0 * tau**2
-
-
 def executed_acceleration(arm: robots.Robot, emu: GrblEmulator, h: float = 0.01, dt: float = 0.0005) -> np.ndarray:
     """Per actuator, the largest acceleration of the executed motion over finite differences of
     +-``h`` [s] (every ``dt`` [s]), as a fraction of its limit: where GRBL turns from one line to
     the next, each axis' speed steps at once, and a step of ``dv`` reads ``dv / h`` here."""
     pieces = emu.pieces
     t = np.arange(pieces[0][0] - h, pieces[-1][0] + pieces[-1][1] + h, dt)
-    p = exact_motion(arm, emu, t)
+    p = grbl_exact_motion(arm, emu, t)
     k = round(h / dt)
     acc = (p[2 * k :] - 2.0 * p[k:-k] + p[: -2 * k]) / h**2
     return np.max(np.abs(acc), axis=0) / actuator_limits_deg(arm)[1]

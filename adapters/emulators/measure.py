@@ -10,7 +10,8 @@ velocity and acceleration limits at every moment.
   curves them: then sampled finely), with its jumps; :func:`peaks`, such a path's fastest speed
   and largest change of speed over a window.
 - :func:`grbl_motion`, :func:`fitted_peaks`: GRBL's trace of the arm, and its peak speed and
-  acceleration fitted over a window (a stepper's whole steps are not its motion).
+  acceleration fitted over a window (a stepper's whole steps are not its motion);
+  :func:`grbl_exact_motion`: GRBL's motion before its whole steps, as its planner made it.
 - :func:`bus_joint_traces`, :func:`braking`: a bus-servo arm's joints as its servos moved
   (the bus emulators' model, every step), and how a joint came to rest after a moment (a
   fault): its speed then, how far it ran on, how far back against its way, how hard it braked.
@@ -249,6 +250,22 @@ def fitted_peaks(t: FloatArray, p: FloatArray, window: float, dt: float = 0.002)
     vel = np.column_stack([np.convolve(q[:, j], fit[1][::-1], mode="valid") for j in range(q.shape[1])])
     acc = np.column_stack([np.convolve(q[:, j], 2.0 * fit[0][::-1], mode="valid") for j in range(q.shape[1])])
     return np.max(np.abs(vel), axis=0), np.max(np.abs(acc), axis=0)
+
+
+def grbl_exact_motion(robot: Robot, emulator: GrblEmulator, times: FloatArray) -> FloatArray:
+    """The arm's actuator angles [deg] at ``times`` [s, the emulator's clock], from the emulator's
+    exact motion (:attr:`GrblEmulator.pieces`: GRBL's planner and stepper profiles before their
+    whole steps), held before its first piece and after its last. Rows: times; columns: actuators."""
+    pieces = emulator.pieces
+    cols = [emulator.axes.index(a.axis) for a in robot.actuators.actuators if isinstance(a, Stepper)]
+    start = np.array([p[0] for p in pieces])
+    k = np.clip(np.searchsorted(start, times, side="right") - 1, 0, None)
+    tau = np.clip(times - start[k], 0.0, np.array([p[1] for p in pieces])[k])[:, None]
+    p0 = np.array([[p[2][c] for c in cols] for p in pieces])[k]
+    v0 = np.array([[p[3][c] for c in cols] for p in pieces])[k]
+    a0 = np.array([[p[4][c] for c in cols] for p in pieces])[k]
+    out: FloatArray = p0 + v0 * tau + 0.5 * a0 * tau**2
+    return out
 
 
 def actuator_limits_deg(robot: Robot) -> tuple[FloatArray, FloatArray]:
