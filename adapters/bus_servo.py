@@ -97,9 +97,10 @@ START_SLACK = 0.02  # [rad] how far outside its limits the arm may be found at s
 FRESH = 0.002  # [s] a reading this recent answers measure() without another read
 SDK_LATENCY = 0.016  # [s] what the SDKs assume of every link (an FTDI chip's factory latency timer)
 USB_FRAME = 0.001  # [s] a USB link's latency where nothing says more (a full-speed frame)
-LINK_MARGIN = 0.005  # [s] the slack a reply has beyond its bytes' time and twice the link's latency
+LINK_MARGIN = 0.01  # [s] the slack a reply has beyond its bytes' time and twice the link's latency
 MAX_LATENCY = 0.05  # [s] the most the pings' measure of the link's latency is taken to be
 SLOW_LINK = 0.004  # [s] a latency above this is said at start, with how to lower it
+WRITES = 3  # tries of a write whose status did not come
 RETRY_WITHIN = 0.003  # [s] a sync read that lost a reply this fast (noise, not a silent servo) is tried again at once
 
 
@@ -251,16 +252,21 @@ class SdkBus(Bus):
         return int(model)
 
     def learn_latency(self) -> None:
-        """The link's latency from the pings' round trips so far (the slowest), where the system
+        """The link's latency from the pings' round trips so far (their median), where the system
         shows no latency timer: at least a USB frame, at most ``MAX_LATENCY``."""
         if self.latency_timer is None and self._took:
-            self.latency = min(max(max(self._took), USB_FRAME), MAX_LATENCY)
+            self.latency = min(max(float(np.median(self._took)), USB_FRAME), MAX_LATENCY)
 
     def _write(self, ident: int, address: int, size: int, value: int) -> None:
-        """A write that must be taken (its status: no error), else :class:`ControllerFault`."""
-        self._fresh()
+        """A write that must be taken (its status: no error), else :class:`ControllerFault`; one
+        whose status did not come is written again, up to ``WRITES`` times (the same value: no
+        harm; on a busy machine a status may come too late)."""
         write = {1: self.packets.write1ByteTxRx, 2: self.packets.write2ByteTxRx, 4: self.packets.write4ByteTxRx}[size]
-        result, error = write(self.handler, ident, address, value)
+        for _ in range(WRITES):
+            self._fresh()
+            result, error = write(self.handler, ident, address, value)
+            if self._ok(result):
+                break
         if not self._ok(result) or error & self.write_errors:
             why = self.packets.getTxRxResult(result) if not self._ok(result) else self.packets.getRxPacketError(error)
             raise ControllerFault(f"servo id {ident} on {self.port} did not take a write to address {address}: {why}")
@@ -305,10 +311,11 @@ def sync_read(bus: Bus, ids: list[int]) -> tuple[dict[int, Reading], float]:
     return got, asked
 
 
-def silent_servos(bus: Bus, ids: list[int]) -> list[int]:
-    """Those of ``ids`` that answer no ping: a sync read broken off at a silent servo loses the
-    replies of the servos after it too, which are well."""
-    return [i for i in ids if bus.ping(i) is None]
+def silent_servos(bus: Bus, ids: list[int], pings: int = 3) -> list[int]:
+    """Those of ``ids`` that answer none of ``pings`` pings: a sync read broken off at a silent
+    servo loses the replies of the servos after it too, which are well (and a busy machine may
+    miss one answer)."""
+    return [i for i in ids if all(bus.ping(i) is None for _ in range(pings))]
 
 
 def usb_latency_timer(port: str) -> float | None:
@@ -327,6 +334,10 @@ def ping_all(bus: Bus, robot: Robot, servos: list[BusServo]) -> None:
     gripper_id = robot.gripper.channel if robot.gripper is not None else None
     wanted = [*(s.id for s in servos), *([gripper_id] if gripper_id is not None else [])]
     models = {i: bus.ping(i) for i in wanted}
+    quiet = [i for i, m in models.items() if m is None]
+    if quiet:  # (asked again: on a busy machine an answer may come too late)
+        still = silent_servos(bus, quiet)
+        models.update({i: bus.ping(i) for i in quiet if i not in still})
     bus.learn_latency()
     silent = [i for i, m in models.items() if m is None]
     if silent:
@@ -456,7 +467,7 @@ class BusServoAdapter(Adapter):
             self.bus.write_goals({i: got[i].position for i in self.ids}, self._speeds(np.zeros(self.robot.nq)))
             for i in self.ids:
                 self.bus.set_torque(i, True)
-            settings = self.bus.read_settings(self.ids)
+        settings = self._settings()
         unset = [
             f"{self._named([i])}: " + ("no answer" if st is None else "torque off" if not st.torque else "acceleration")
             for i in self.ids
@@ -519,8 +530,9 @@ class BusServoAdapter(Adapter):
     def _find_silent(self) -> None:
         """The servos that answer no ping, of those the failed reads missed and those silent
         already: a sync read broken off at a silent servo loses the replies after it too."""
-        with self._io:
-            self._silent = silent_servos(self.bus, sorted(set(self._missing) | set(self._silent)))
+        with self._io:  # (a servo named silent already: a ping each check, until it answers)
+            new = sorted(set(self._missing) - set(self._silent))
+            self._silent = sorted(silent_servos(self.bus, new) + silent_servos(self.bus, self._silent, pings=1))
 
     def _diagnose(self) -> str | None:
         """Why the arm cannot be driven now, else None: servos that do not answer (named by a
@@ -533,8 +545,7 @@ class BusServoAdapter(Adapter):
         if self._silent or self._lost > self.max_lost:  # (one reason, whether a ping got through or not)
             quiet = self._silent or self._missing[:1]  # (else the servo where the reads broke off)
             return f"servo id {self._named(quiet)} does not answer on {port}: check its cable and its power"
-        with self._io:
-            settings = self.bus.read_settings(self.ids)
+        settings = self._settings()
         reset = [i for i, st in settings.items() if st.acceleration != self._accel_units.get(i)]
         if reset:
             if self.fault is None:
@@ -544,8 +555,7 @@ class BusServoAdapter(Adapter):
                     f"limit gone) on {port}: set up again as soon as it answers"
                 )
             self._set_up_again()
-            with self._io:
-                settings = self.bus.read_settings(self.ids)
+            settings = self._settings()
         parts = [f"alarm: {self._alarm}"] if self._alarm is not None else []
         limp = [i for i, st in settings.items() if not st.torque]
         if limp:
@@ -554,6 +564,17 @@ class BusServoAdapter(Adapter):
                 f"armd unlock {self.robot.name} --assume-rest"
             )
         return "; ".join(parts) or None
+
+    def _settings(self) -> dict[int, Settings]:
+        """What each servo holds of the adapter's settings; a servo that reads otherwise than as
+        set is read again at once, and the second reading is the one believed (a reply that came
+        late, after its timeout, on a busy machine, is read as the next one's: a whole state's
+        bytes taken for a torque and an acceleration)."""
+        with self._io:
+            first = self.bus.read_settings(self.ids)
+            odd = [i for i, st in first.items() if not st.torque or st.acceleration != self._accel_units.get(i)]
+            again = self.bus.read_settings(odd) if odd else {}
+        return {i: again.get(i, st) for i, st in first.items()}
 
     def _speeds(self, v: FloatArray, q: FloatArray | None = None) -> dict[int, int]:
         """Each servo's speed [counts/s] for joint velocities ``v`` [rad/s] at position ``q``

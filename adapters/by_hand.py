@@ -48,7 +48,7 @@ NUDGE = 0.05  # [rad] the least a nudged joint must turn to show its direction
 LIMP = "Hold the arm: its servos are about to let go (torque off). Then press Enter"
 STILL_READS = 5  # readings whose median is a pose held still
 NUDGE_TRIES = 3  # prompts for a joint that did not move before it is refused
-LOST_FOR = 0.5  # [s] how long the reads may lose a reply before the bus is a fault (a hand is slow)
+LOST_FOR = 2.0  # [s] how long the reads may lose a reply before the bus is a fault (a hand is slow)
 
 
 class HandGuided:

@@ -354,7 +354,7 @@ def test_record_refuses_an_arm_not_on_a_bus(tmp_path: Path) -> None:
 def test_record_goes_on_through_lost_replies_and_names_a_silent_servo() -> None:
     """Replies lost read after read (20 of servo 3's: every read for a while loses it and the
     replies after it) leave a gap in the recording, not an error (the old recorder gave up after
-    4); a servo silent for longer than ``LOST_FOR`` ends it, naming that servo alone."""
+    4); a servo silent for longer than ``LOST_FOR`` (2 s) ends it, naming that servo alone."""
     pytest.importorskip("scservo_sdk")
     import threading
 
@@ -366,11 +366,14 @@ def test_record_goes_on_through_lost_replies_and_names_a_silent_servo() -> None:
     with EmulatorProcess(FeetechEmulator, ids=[1, 2, 3, 4, 5, 6]) as emu:
         stop = threading.Event()
         out: list[object] = []
+        seconds = 1.5
 
         def run() -> None:
             try:
                 out.append(
-                    by_hand.record(arm, FeetechBus(emu.port, 1_000_000), stop, seconds=1.5, say=str, ready=lambda: None)
+                    by_hand.record(
+                        arm, FeetechBus(emu.port, 1_000_000), stop, seconds=seconds, say=str, ready=lambda: None
+                    )
                 )
             except Exception as e:  # (told below)
                 out.append(e)
@@ -384,6 +387,7 @@ def test_record_goes_on_through_lost_replies_and_names_a_silent_servo() -> None:
         rec = out[0]
         assert isinstance(rec, Recording), rec
         assert rec.times[-1] > 1.2 and len(rec.times) > 150
+        seconds = 4.0  # (longer than LOST_FOR after the silence)
         worker = threading.Thread(target=run)
         out.clear()
         worker.start()
