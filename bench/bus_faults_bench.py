@@ -11,10 +11,8 @@ asked). Medians and worst over the runs.
 
 from __future__ import annotations
 
-import json
 import math
 import socket
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -23,6 +21,7 @@ from typing import Any
 
 import numpy as np
 import zenoh
+from fault_watch import ArmWatch
 
 from armd import robots
 from armd.adapters.emulators.dynamixel import DynamixelEmulator
@@ -122,31 +121,17 @@ def _one(row: dict[str, Any], case: Case, fault: str, rig: tuple[zenoh.Session, 
     session, service, client = rig
     arm = case.arm
     inject, limp = FAULTS[fault]
-    lock = threading.Lock()
-    events: list[tuple[float, dict[str, Any]]] = []
-    states: list[float] = []
-
-    def on_event(sample: zenoh.Sample) -> None:
-        with lock:
-            events.append((time.monotonic(), json.loads(sample.payload.to_bytes())))
-
-    def on_state(sample: zenoh.Sample) -> None:
-        with lock:
-            states.append(time.monotonic())
 
     with EmulatorProcess(case.emulator, ids=case.ids) as emu:
         adapter = case.adapter(session, arm, emu.port)
-        subs = [
-            client.session.declare_subscriber(f"armd/{arm.name}/events", on_event),
-            client.session.declare_subscriber(f"armd/{arm.name}/state", on_state),
-        ]
+        watch = ArmWatch(client.session, arm.name)
         try:
             end = time.monotonic() + 10
             while service._adapter_count(arm) != 1 and time.monotonic() < end:
                 time.sleep(0.01)
             client.move(arm.name, case.start, wait=True, wait_timeout=20)
             r = client.move(arm.name, case.goal)
-            while not any(e.get("event") == "started" and e.get("id") == r.id for _, e in list(events)):
+            while not watch.started(r.id):
                 time.sleep(0.002)
             time.sleep(case.cruise)
             culprit = arm.actuators.actuators[1].id
@@ -154,10 +139,9 @@ def _one(row: dict[str, Any], case: Case, fault: str, rig: tuple[zenoh.Session, 
             inject(emu, client, arm.name, culprit)
             time.sleep(AFTER)
             until = time.monotonic()
-            with lock:
-                said = [t for t, e in events if t >= t_fault and e.get("event") in ("fault", "accepted")]
-                rate = sum(t_fault + 0.2 <= t <= until for t in states) / (until - t_fault - 0.2)
-            row.setdefault("noticed", []).append(1000.0 * (said[0] - t_fault) if said else float("nan"))
+            said = watch.first(t_fault, ("fault", "accepted"))
+            rate = watch.state_rate(t_fault + 0.2, until)
+            row.setdefault("noticed", []).append(1000.0 * (said - t_fault) if said is not None else float("nan"))
             ran = back = accel = 0.0
             for j, trace in enumerate(bus_joint_traces(arm, emu)):
                 b = braking(trace, t_fault, until)
@@ -171,8 +155,7 @@ def _one(row: dict[str, Any], case: Case, fault: str, rig: tuple[zenoh.Session, 
             row.setdefault("accel", []).append(accel)
             row.setdefault("rate", []).append(rate)
         finally:
-            for sub in subs:
-                sub.undeclare()
+            watch.close()
             adapter.close()
 
 

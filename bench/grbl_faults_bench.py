@@ -15,15 +15,14 @@ is left mid-move to answer so: tests/test_adapter_grbl.py tries it at the start 
 
 from __future__ import annotations
 
-import json
 import socket
-import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 import zenoh
+from fault_watch import ArmWatch
 
 from armd import robots
 from armd.adapters.emulators.grbl import GrblEmulator
@@ -84,22 +83,8 @@ def _one(
     rig: tuple[Service, ArmClient],
 ) -> None:
     service, client = rig
-    lock = threading.Lock()
-    events: list[tuple[float, dict[str, Any]]] = []
-    states: list[float] = []
 
-    def on_event(sample: zenoh.Sample) -> None:
-        with lock:
-            events.append((time.monotonic(), json.loads(sample.payload.to_bytes())))
-
-    def on_state(sample: zenoh.Sample) -> None:
-        with lock:
-            states.append(time.monotonic())
-
-    subs = [
-        client.session.declare_subscriber(f"armd/{ARM}/events", on_event),
-        client.session.declare_subscriber(f"armd/{ARM}/state", on_state),
-    ]
+    watch = ArmWatch(client.session, arm.name)
     try:
         end = time.monotonic() + 10
         while service._adapter_count(arm) != 1 and time.monotonic() < end:
@@ -112,9 +97,8 @@ def _one(
         inject(emu, client)
         time.sleep(AFTER)
         until = time.monotonic()
-        with lock:
-            said = [t for t, e in events if t >= t_fault and e.get("event") in ("fault", "aborted", "accepted")]
-            rate = sum(t_fault + 0.2 <= t <= until for t in states) / (until - t_fault - 0.2)
+        said = watch.first(t_fault, ("fault", "aborted", "accepted"))
+        rate = watch.state_rate(t_fault + 0.2, until)
         t = np.arange(t_fault - 0.05, until, 0.0005)
         q = np.radians(grbl_exact_motion(arm, emu, t))  # [rad] of each actuator
         k0 = round(0.05 / 0.0005)
@@ -123,14 +107,13 @@ def _one(
         way = np.sign(speed)
         ahead = way * (q[k0:] - q[k0])
         acc = (q[2 * k :] - 2.0 * q[k:-k] + q[: -2 * k]) / H**2
-        row.setdefault("noticed", []).append(1000.0 * (said[0] - t_fault) if said else float("nan"))
+        row.setdefault("noticed", []).append(1000.0 * (said - t_fault) if said is not None else float("nan"))
         row.setdefault("ran", []).append(float(np.max(ahead)))
         row.setdefault("back", []).append(float(np.max(np.maximum.accumulate(ahead, axis=0) - ahead)))
         row.setdefault("accel", []).append(float(np.max(np.abs(acc) / np.radians(actuator_limits_deg(arm)[1]))))
         row.setdefault("rate", []).append(rate)
     finally:
-        for sub in subs:
-            sub.undeclare()
+        watch.close()
 
 
 def print_grbl_fault_table(rows: list[dict[str, Any]]) -> None:

@@ -157,6 +157,13 @@ def bus_arm(
             adapter.close()
 
 
+def within_acceleration(arm: robots.Robot, emu: Any, since: float) -> None:
+    """Every joint's speed changed within its acceleration limit (``ACCEL_BAR``) at the servos since ``since``."""
+    for j, trace in enumerate(bus_joint_traces(arm, emu)):
+        accel = braking(trace, since + 0.05, time.monotonic()).acceleration
+        assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+
+
 def move_and_fault(
     client: ArmClient, arm: robots.Robot, bench: Bench, inject: Callable[[], None], watch: Watch
 ) -> float:
@@ -252,9 +259,7 @@ def test_a_silent_servo_answers_again_and_the_arm_is_driven(
         wait_for(lambda: fault_service._adapter_count(arm) == 1, what="the token back")
         t0 = time.monotonic()
         fault_client.move(arm.name, bench.goal, wait=True, wait_timeout=15)
-        for j, trace in enumerate(bus_joint_traces(arm, emu)):
-            accel = braking(trace, t0 + 0.05, time.monotonic()).acceleration
-            assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+        within_acceleration(arm, emu, t0)
 
 
 @pytest.mark.parametrize("vendor", list(BENCHES))
@@ -286,9 +291,7 @@ def test_a_power_cycle_is_a_new_controller(
         wait_for(lambda: fault_service._adapter_count(arm) == 1, what="the token back")
         t0 = time.monotonic()
         fault_client.move(arm.name, bench.start, wait=True, wait_timeout=15)
-        for j, trace in enumerate(bus_joint_traces(arm, emu)):
-            accel = braking(trace, t0 + 0.05, time.monotonic()).acceleration
-            assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+        within_acceleration(arm, emu, t0)
 
 
 def test_a_slow_usb_link_is_measured_said_and_driven(
@@ -312,9 +315,7 @@ def test_a_slow_usb_link_is_measured_said_and_driven(
             for goal in (bench.start, bench.goal, bench.start):
                 fault_client.move(arm.name, goal, wait=True, wait_timeout=20)
             assert not watch.of("aborted") and not watch.of("fault")
-            for j, trace in enumerate(bus_joint_traces(arm, emu)):
-                accel = braking(trace, t0 + 0.05, time.monotonic()).acceleration
-                assert accel <= arm.limits.acceleration[j] * ACCEL_BAR, (arm.joint_names[j], accel)
+            within_acceleration(arm, emu, t0)
             emu.silence(4)
             wait_for(lambda: watch.of("fault"), timeout=5, what="the fault")
             assert str(watch.of("fault")[0]["reason"]).startswith("servo id 4 (wrist_flex) does not answer")
