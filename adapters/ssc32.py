@@ -39,8 +39,23 @@ linkage's servos (a group that moves more than one joint, desk4's) go in one com
   baud rate.
 - Checks never block the stream: every ``query_period`` a ``QP`` of every channel is written,
   and its answer read by later passes of the control loop; no answer within ``timeout`` is a
-  fault, and so is an answer that disagrees with the model by more than ``QP_TOL`` (someone
-  else moved the servos, the board was reset).
+  fault. The board answers the pulse of its frame in progress (it outputs one every 20 ms) in
+  10 us, and a line that reached it up to a frame late leaves it where the model was a frame
+  before: an answer is compared with the model from two frames before it was asked until it
+  was answered, give or take the 10 us and ``MODEL_TOL`` (at rest 15 us; a servo at 3 rad/s,
+  91 us behind where the model was when asked). One off that is asked again at once; a second
+  in a row with a servo off the same way is a fault (someone else moved the servo, the board
+  was reset). The model of that servo is then put where the
+  board's answers say it is, narrower with each (``FAULT_QUERY_PERIOD``) while the model
+  moves: the stop that brakes the arm (it streams through :meth:`SSC32Adapter.execute`,
+  fault or not) brakes from there. Faulted, an answer that agrees with the model recovers the
+  adapter as it is; else it recovers once the board stands still (the same answer for
+  ``STILL``, after the adapter's own moves have ended), from where the board is then: never
+  from an answer the board has since moved on from. A stop that finds the board at rest where
+  it would end sends nothing (a line there would creep a board that is not at 1 us/s). A board
+  found without a pulse (reset, powered off and on) is sent nothing more, not even a stop: its
+  servos are limp, and the first line to a channel would jump its servo at full speed; the
+  fault says to restart the adapter.
 
 Start-up: ``VER`` must answer. Then ``QP``: a board already outputting pulses on every channel
 (the adapter restarted, the board stayed powered) is adopted as it is, with no pulse change. A
@@ -91,7 +106,11 @@ MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: ref
 LEAD = 0.05  # [s] at least this long before the board reaches a move, the next one is sent
 MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine
 LATENESS_DECAY = 0.5  # per second: how fast the lead forgets a late pass of the control loop
-QP_TOL = 25.0  # [us] how far a QP answer may be from the model (QP answers in 10 us, the model rounds)
+QP_RESOLUTION = 10.0  # [us] QP answers a pulse / 10 (the SSC-32U guide: "a resolution of 10uS")
+FRAME = 0.02  # [s] the board outputs a servo's pulse every 20 ms (the guide); QP answers the frame in progress
+MODEL_TOL = 5.0  # [us] how far the model may be from the board at rest: a board adopted from a QP (its middle)
+STILL = 0.1  # [s] a board whose QP answers stay the same this long (after the adapter's moves end) stands still
+FAULT_QUERY_PERIOD = 0.05  # [s] how often the board is asked while faulted or followed (its answers: the way back)
 ARRIVAL_TOL = 2e-4  # [s] how far from when a move is aimed for the board may have it (else it is aimed again)
 MAX_SLIP = 1.5  # periods: the most the plan's clock advances between two moves (later: the plan waits)
 RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
@@ -216,6 +235,14 @@ class SSC32Adapter(SerialAdapter):
         self._next_query = now
         self._answered = self._faulted_at = -math.inf  # [s] the last QP answer; the last fault
         self._answer: FloatArray | None = None  # [us] the last QP answer
+        self._asked = -math.inf  # [s] when the last answer was asked for
+        self._suspect: FloatArray | None = None  # per servo, the side (+1, -1; 0: agreed) the last answer was off
+        self._suspect_bounds: tuple[FloatArray, FloatArray] | None = None  # [us] its _offsets
+        self._followed: np.ndarray | None = None  # the servos found off the model, followed by every answer
+        self._bounds: tuple[FloatArray, FloatArray] | None = None  # [us] the board from the model, so far
+        self._still: FloatArray | None = None  # [us] faulted: the answer the board has given since _same_since
+        self._same_since = math.inf  # [s] faulted: when the first of the same answers was asked for
+        self._dark = False  # a channel found without a pulse (a reset, a power cycle): nothing is sent until a restart
         self.version = self._ask(b"VER\r", until=b"\r").decode(errors="replace").strip()
         if not self.version:
             self.serial.close()
@@ -409,6 +436,7 @@ class SSC32Adapter(SerialAdapter):
     def _hold_at(self, q: FloatArray) -> None:
         """The model: the board holds ``q`` from now on (what came before is forgotten)."""
         now = time.monotonic()
+        self._followed = self._bounds = None
         self._p0, self._p1 = q.copy(), q.copy()
         self._since, self._until = np.full(self.robot.nq, now), np.full(self.robot.nq, now)
         self._t_line = self._t_end = now
@@ -662,10 +690,12 @@ class SSC32Adapter(SerialAdapter):
 
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
         self._poll_reply()
+        if self._dark:  # (a board without pulses: the first line to a channel jumps its servo; nothing is sent)
+            return True
         now = time.monotonic()
         if first:
             self._stride = self.stride_for(cmd)
-            self._settled = False
+            self._settled = cmd.kind == "stop" and self._resting_at(cmd, now)  # (a stop at rest: nothing to send)
         period = self._stride / cmd.rate_hz
         # the lead grows with how late this loop has run lately (a busy machine), up to MAX_LEAD
         self._lateness *= LATENESS_DECAY ** max(now - self._seen_at, 0.0)
@@ -682,6 +712,16 @@ class SSC32Adapter(SerialAdapter):
                     self._stopped_late(cmd, now + link - self._t_end)
             self._stream(cmd, first, period, lead)
         return self._settled and now >= float(np.max(self._until))
+
+    def _resting_at(self, cmd: Command, now: float) -> bool:
+        """Whether the board, as the model has it, rests where ``cmd`` ends (within a
+        microsecond of every servo: a stop planned from rest, its pulses rounded). A line to
+        where it rests would move nothing on a board that is there; on one that is not (a
+        fault: someone else moved a servo) it would creep there at a few us/s: none is sent."""
+        if now < float(np.max(self._until)):
+            return False
+        goal = self.robot.actuators.joints_from_commands(cmd.commands[-1], tol=np.inf)
+        return bool(np.all(np.abs(goal - self._p1) <= 2.0 * self._half_pulse))
 
     def _stopped_late(self, cmd: Command, late: float) -> None:
         """Said when the control loop ran so late (a stalled process) that the board finished its
@@ -700,7 +740,10 @@ class SSC32Adapter(SerialAdapter):
         self._save_pose()
 
     def hold(self) -> None:
-        """Stop sending: the board completes the move in hand (at most ``lead`` plus a period) and holds."""
+        """Stop sending: the board completes the move in hand (at most the lead and a period) and
+        holds there, a stop at the speed it had; the model already runs on with it. The fallback
+        where no stop can be streamed: on a fault a stop streams through :meth:`execute`, which
+        needs no fault-free state (answers that come meanwhile are kept for the recovery)."""
         return None
 
     def measure(self) -> JointState:
@@ -709,14 +752,19 @@ class SSC32Adapter(SerialAdapter):
 
     def check(self) -> None:
         """The control loop's look at the board, never waiting: read a QP answer if it came,
-        fault if it is overdue or disagrees with the model, ask again when it is time (after an
-        overdue answer, once the link has been quiet for ``QUIET``: its late bytes must not be
-        taken for the next answer)."""
+        fault if it is overdue, ask again when it is time (after an overdue answer, once the link
+        has been quiet for ``QUIET``: its late bytes must not be taken for the next answer).
+
+        An answer off the model (:meth:`_mismatch`) is asked again at once, and only a second one
+        in a row, with a servo off the same way, is a fault (:meth:`_poll_reply`). Faulted, the
+        board is asked every ``FAULT_QUERY_PERIOD``, and recovered (:meth:`_recover`) by an answer
+        that agrees with the model, or once it stands still elsewhere: from where it is then."""
         self._poll_reply()
         now = time.monotonic()
         if self.fault and not self._fault_noted:  # (whatever raised it: recovery needs an answer since)
             self._faulted_at = max(self._faulted_at, now)
             self._fault_noted = True
+            self._suspect, self._still, self._same_since = None, None, math.inf
         elif not self.fault:
             self._fault_noted = False
         overdue = self._query is not None and now - self._query[0] > self.timeout + self._query[1] * 10.0 / self.baud
@@ -724,36 +772,47 @@ class SSC32Adapter(SerialAdapter):
             self._query = None
             self._reply = b""
             self._quiet_since = now
-        if self.fault:  # recovered only once the board has answered since, from where it says it is
-            if self._answered > self._faulted_at:
-                why = self._resync()
-                if why is None:
-                    return
+            self._suspect = None
+        reason = self.fault
+        if self.fault:
+            if self._answered > self._faulted_at:  # (each answer since the fault looked at once)
                 self._faulted_at = self._answered
-                self._query = None
-                raise ControllerFault(why)
-            if self._query is None:
-                self._next_query = now
+                reason = self._recover()
+                if reason is None:
+                    return
         elif overdue:
             self._faulted_at = now
             raise ControllerFault(f"SSC-32 on {self.port} does not answer (QP got no reply in {self.timeout} s)")
+        if (self.fault or self._followed is not None) and self._query is None:  # (asked often)
+            self._next_query = min(self._next_query, self._asked + self._often())
         qp_due = now >= self._next_query
         sense_due = bool(self.sensors) and not self.fault and now >= self.sensors.ready_at
         if self._query is None and (qp_due or sense_due) and self._quiet(now):
-            # one write, the board's answers in order: the arm's QP, then the sensors' (docs: ssc32_sensors)
-            request = self._qp_request() + (self.sensors.request if sense_due else b"")
-            with self._io:
-                try:
-                    self.serial.reset_input_buffer()
-                except serial.SerialException as e:
-                    raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
-            asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
-            self._write(request)
-            size = len(self.channels) + (self.sensors.reply_size if sense_due else 0)
-            self._query = (asked, size, sense_due)
-            self._next_query = now + self.query_period
-        if self.fault:
-            raise ControllerFault(self.fault)
+            self._ask_board(now, sense_due)
+        if reason is not None:
+            raise ControllerFault(reason)
+
+    def _often(self) -> float:
+        """How often [s] the board is asked while faulted, or while servos found off the model
+        are followed: every ``FAULT_QUERY_PERIOD``, or as often as the link's share left to the
+        checks carries a ``QP`` and its answer (a slow link)."""
+        size = len(self._qp_request()) + len(self.channels)  # [bytes] there and back
+        return max(FAULT_QUERY_PERIOD, size * 10.0 / self.baud / (1.0 - LINK_SHARE))
+
+    def _ask_board(self, now: float, sense: bool) -> None:
+        """Write a ``QP`` of every channel (and, with ``sense``, the sensors' request: one write,
+        the board's answers in order, docs: ssc32_sensors); its answer is read by later passes."""
+        request = self._qp_request() + (self.sensors.request if sense else b"")
+        with self._io:
+            try:
+                self.serial.reset_input_buffer()
+            except serial.SerialException as e:
+                raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
+        asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
+        self._write(request)
+        size = len(self.channels) + (self.sensors.reply_size if sense else 0)
+        self._query = (asked, size, sense)
+        self._next_query = now + self.query_period
 
     def _quiet(self, now: float) -> bool:
         """Whether the link from the board has been quiet ``QUIET`` since an overdue answer (its
@@ -777,6 +836,11 @@ class SSC32Adapter(SerialAdapter):
             raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
 
     def _poll_reply(self) -> None:
+        """Read the board's answer if it has come (never waiting) and look at it: within what
+        the model allows, the sensors' part is used; off it, the board is asked again at once
+        (the stream goes on), and a second answer in a row with a servo off the same way is a
+        fault. Those servos are then followed (:meth:`_follow`) by every answer while the model
+        moves: the stop that brakes the arm after the fault brakes from where the board is."""
         if self._query is None:
             return
         self._reply += self._read_waiting()
@@ -785,60 +849,169 @@ class SSC32Adapter(SerialAdapter):
             return
         n = len(self.channels)
         reply, sensors, self._reply, self._query = self._reply[:n], self._reply[n:size], b"", None
-        self._answered = time.monotonic()
+        self._answered, self._asked = time.monotonic(), asked
         self._answer = np.array([10.0 * b for b in reply])
+        if self._followed is not None:  # (servos found off the model: followed while the model moves)
+            if asked < float(np.max(self._until)):
+                self._follow(*self._offsets(self._answer, asked, self._answered), asked, self._answered)
+            else:
+                self._followed = self._bounds = None
         if self.fault:
-            return  # answering again: the base's recovery follows (the sensors' part is not looked at)
-        try:
-            self._compare(self._answer, asked, self._answered)
-        except ControllerFault:
-            self._faulted_at = self._answered
-            raise
-        if sensed:  # the board as the adapter has it: the readings published, the scanners stepped (or sent again)
-            self.sensors.answered(sensors)
-            step = self.sensors.aim()
-            if step:
-                self._write(step)
-            now = time.monotonic()
-            share = (len(self.sensors.request) + len(step) + size) / (SENSOR_SHARE * self.baud / 10.0)  # [s]
-            self.sensors.ready_at = max(max(now, self._link_free) + self.sensors.settle_time(), now + share)
+            return  # answering again: the recovery follows (check; the sensors' part is not looked at)
+        off, model = self._mismatch(self._answer, asked, self._answered)
+        side = np.where(off > 0.0, np.sign(self._answer - model), 0.0)  # [per servo] the board above (+1), below
+        if not side.any():
+            self._suspect = None
+            if sensed:  # the board as the adapter has it: the readings published, the scanners stepped (or sent again)
+                self._sensed(sensors, size)
+            return
+        again = self._suspect is not None and bool(np.any((side != 0.0) & (side == self._suspect)))
+        if not again:  # (a host that held a line longer than a frame, a stray byte): asked again before believed
+            self._suspect = side
+            self._suspect_bounds = self._offsets(self._answer, asked, self._answered)
+            i = int(np.argmax(off))
+            log.info(
+                "%s: QP: channel %d outputs %.0f us, %.0f us beyond what the model allows: asked again",
+                self.robot.name,
+                self.channels[i],
+                self._answer[i],
+                off[i],
+            )
+            self._ask_board(time.monotonic(), sense=False)
+            return
+        i = int(np.argmax(np.where(side == self._suspect, off, -np.inf)))
+        self._suspect = None
+        self._faulted_at = self._answered
+        if np.all(self._answer[side != 0.0] > 0):
+            self._followed, self._bounds = side != 0.0, self._suspect_bounds
+            self._follow(*self._offsets(self._answer, asked, self._answered), asked, self._answered)
+        else:  # (no pulse: a board reset, its servos limp and nowhere known; a line would jump them)
+            self._dark = True
+        raise ControllerFault(
+            f"SSC-32 on {self.port}: channel {self.channels[i]} outputs {self._answer[i]:.0f} us, "
+            f"the adapter commanded {model[i]:.0f} us ({off[i]:.0f} us beyond what it allows, twice in a row: "
+            "someone else moved it, or the board was reset)"
+        )
 
-    def _resync(self) -> str | None:
-        """The model put where the board's last QP answer says the arm is; else why not (the
-        fault stays, with that reason)."""
+    def _sensed(self, reply: bytes, size: int) -> None:
+        """The sensors' part of an answer that agreed with the model: the readings published,
+        the scanners stepped (or sent again), the next read due."""
+        self.sensors.answered(reply)
+        step = self.sensors.aim()
+        if step:
+            self._write(step)
+        now = time.monotonic()
+        share = (len(self.sensors.request) + len(step) + size) / (SENSOR_SHARE * self.baud / 10.0)  # [s]
+        self.sensors.ready_at = max(max(now, self._link_free) + self.sensors.settle_time(), now + share)
+
+    def _window(self, asked: float, answered: float) -> FloatArray:
+        """The model's pulses [us] where a QP answer may show the board (a row each: two frames
+        before it was asked, until it was answered, every piece's start and end between). The
+        board answers the pulse of its frame in progress (one every ``FRAME``): the model's up
+        to a frame before the query ran; and a line that reached the board up to a frame late
+        (a busy host, a slow link) leaves the board where the model was up to a frame before
+        that: at a servo's speed, what it moves in a frame (38 us at 3 rad/s on an AL5 arm)."""
+        amap = self.robot.actuators
+        start = asked - 2.0 * FRAME
+        inside = {float(t) for _, t0, _, t1 in self._pieces for t in (*t0, *t1) if start < t < answered}
+        return np.array([amap.command_values(self._was_at(t)) for t in sorted({start, answered, *inside})])
+
+    def _mismatch(self, pulses: FloatArray, asked: float, answered: float) -> tuple[FloatArray, FloatArray]:
+        """How far a QP answer [us] is beyond what the model allows, per servo (> 0: beyond it),
+        and the model's pulses when it was answered [us]. Allowed: the model's pulses anywhere
+        in :meth:`_window`, give or take ``QP_RESOLUTION`` (the answer's 10 us) and
+        ``MODEL_TOL`` (a board adopted from a QP answer): 15 us at rest; at 3 rad/s, 91 us
+        behind where the model was when the query was asked."""
+        model = self._window(asked, answered)
+        tol = QP_RESOLUTION + MODEL_TOL
+        return np.maximum(pulses - model.max(axis=0), model.min(axis=0) - pulses) - tol, model[-1]
+
+    def _offsets(self, pulses: FloatArray, asked: float, answered: float) -> tuple[FloatArray, FloatArray]:
+        """Per servo, the least and the most [us] the board may be from the model by a QP answer:
+        the answer is the pulse less under ``QP_RESOLUTION`` (it truncates), anywhere in
+        :meth:`_window`."""
+        model = self._window(asked, answered)
+        return pulses - model.max(axis=0), pulses + QP_RESOLUTION - model.min(axis=0)
+
+    def _follow(self, lo: FloatArray, hi: FloatArray, asked: float, answered: float) -> None:
+        """The model of the servos ``_followed`` moved onto the board, which is ``lo`` to ``hi``
+        [us] from it (:meth:`_offsets`), and so by every answer since they were found off
+        (narrower each time, while the board follows the adapter's commands from where it is,
+        as a stop's): put at the middle. Each joint moved heads from there for its target at the
+        speed it had (the board's command in force), or holds if it was not moving. Answers that
+        no longer fit together (the board reached a target sooner, someone moved it again)
+        start again from the last."""
+        followed = self._followed
+        if followed is None:
+            return
+        if self._bounds is not None:
+            nlo, nhi = np.maximum(lo, self._bounds[0]), np.minimum(hi, self._bounds[1])
+            if np.all(nlo[followed] <= nhi[followed]):
+                lo, hi = nlo, nhi
+        shift = np.where(followed, (lo + hi) / 2.0, 0.0)  # [us]
+        self._bounds = (lo - shift, hi - shift)
+        if np.all(np.abs(shift) < 0.5):
+            return
+        amap = self.robot.actuators
+        try:
+            q = amap.joints_from_commands(amap.command_values(self._p0) + shift, tol=np.inf)
+        except ActuatorMapError:  # (a linkage's servo where the linkage cannot be: the recovery says so)
+            return
+        if not self.robot.limits.contains(q, tol=0.02):  # (the recovery says so, and stays faulted)
+            return
+        q = self.robot.limits.clip(q)
+        moved = np.abs(q - self._p0) > 1e-12
+        t = 0.5 * (asked - 2.0 * FRAME + answered)  # [s] (about when the answer shows the board: _window)
+        speed = np.abs(self._p1 - self._p0) / np.maximum(self._until - self._since, 1e-9)  # [rad/s]
+        on = moved & (self._until > t) & (speed > 0.0)  # (heading for its target: the board's command in force)
+        p1 = np.where(moved & ~on, q, self._p1)
+        until = np.where(
+            on, self._since + np.abs(self._p1 - q) / np.where(on, speed, 1.0), np.where(moved, self._since, self._until)
+        )
+        log.info("%s: the model put where the board says it is (%s us)", self.robot.name, np.round(shift, 1))
+        dq = np.where(moved, q - self._p0, 0.0)
+        if self._pieces:
+            self._pieces.pop()
+        for k, (a0, s0, a1, s1) in enumerate(self._pieces):  # (the pieces a later answer's window may see: shifted)
+            if float(np.max(s1)) > asked - 2.0 * FRAME:
+                self._pieces[k] = (a0 + dq, s0, a1 + dq, s1)
+        self._p0, self._p1, self._until = self._p0 + dq, p1, until
+        self._pieces.append((self._p0, self._since, self._p1, self._until))
+
+    def _recover(self) -> str | None:
+        """From the board's last answer, None (recovered), or the fault's reason: a board that
+        agrees with the model needs nothing (the model is kept as it is); one that stands
+        still elsewhere (the same answer for ``STILL``, asked after the adapter's own moves had
+        ended: where it is now, not where it was while it moved on) is taken where it is; a
+        board that outputs no pulse, or holds the arm where no joint vector is or outside the
+        limits, stays a fault with that reason."""
         pulses = self._answer
         if pulses is None:
             return "no QP answer"
         if not np.all(pulses > 0):
+            self._dark = True
             ch = self.channels[int(np.argmin(pulses))]
             return (
                 f"SSC-32 on {self.port}: channel {ch} outputs 0 us (the board was reset or powered off): "
                 "restart the adapter to command the arm's pose again"
             )
+        if np.all(self._mismatch(pulses, self._asked, self._answered)[0] <= 0.0):
+            log.info("%s: the board is where the adapter has it", self.robot.name)
+            return None
+        if self._still is None or not np.array_equal(pulses, self._still):
+            self._still, self._same_since = pulses, self._asked
+        if self._asked - self._same_since < STILL or self._same_since < float(np.max(self._until)):
+            return self.fault  # (it may still move: not yet where it will be)
         try:
-            q = self.robot.actuators.joints_from_commands(pulses, tol=np.inf)
+            q = self.robot.actuators.joints_from_commands(pulses + QP_RESOLUTION / 2.0, tol=np.inf)
         except ActuatorMapError as e:  # (a linkage's servo where the linkage cannot be)
             return f"SSC-32 on {self.port} holds the arm where no joint vector is ({e.message})"
         if not self.robot.limits.contains(q, tol=0.02):
             bad = self.robot.limits.violations(q, tol=0.02)[0].message
             return f"SSC-32 on {self.port} holds the arm outside its limits ({bad})"
         self._hold_at(self.robot.limits.clip(q))
+        log.info("%s: the board stands still elsewhere: taken where it is", self.robot.name)
         return None
-
-    def _compare(self, pulses: FloatArray, asked: float, answered: float) -> None:
-        """A QP answer against the model, anywhere between when it was asked and answered."""
-        amap = self.robot.actuators
-        ts = [t for _, t0, _, t1 in self._pieces for t in (*t0, *t1) if asked < t < answered]
-        model = np.array([amap.command_values(self._was_at(float(t))) for t in (asked, *ts, answered)])  # [us]
-        lo, hi = model.min(axis=0) - QP_TOL, model.max(axis=0) + QP_TOL
-        off = np.maximum(lo - pulses, pulses - hi)
-        if np.any(off > 0):
-            i = int(np.argmax(off))
-            raise ControllerFault(
-                f"SSC-32 on {self.port}: channel {self.channels[i]} outputs {pulses[i]:.0f} us, "
-                f"the adapter commanded {model[-1, i]:.0f} us (someone else moved it, or the board "
-                "was reset)"
-            )
 
     def grip(self, opening: float) -> None:
         """Open (1) or close (0) the gripper, or anything between: its own channel, over 0.5 s."""

@@ -548,3 +548,79 @@ def test_a_host_at_the_wrong_baud_rate_gets_nothing() -> None:
             ser.write(b"VER\r")
             assert ser.read_until(b"\r") == b"SSC32-V2.50USB\r"
             assert emu.pulses() == {0: 1500.0}
+
+
+def test_qp_answers_the_pulse_of_the_frame_in_progress(fake: tuple[SSC32Emulator, serial.Serial, FakeClock]) -> None:
+    """The board outputs a pulse every 20 ms (the guide) and QP answers its width: the
+    interpolation at the frame's start (frames from the board's start, 100.0 here), up to a
+    frame behind the output; a command received during a frame leaves that frame's pulse as it
+    was; a jump shows at once. ``frame=0``: QP answers the interpolation itself."""
+    emu, ser, clock = fake
+    send(ser, emu, b"#0P1005\r")
+    send(ser, emu, b"#0P2000T1000\r")  # 995 us/s from 100.0
+
+    def qp() -> int:
+        ser.write(b"QP0\r")
+        return ser.read(1)[0]
+
+    clock.now = 100.5
+    assert qp() == 150  # 1502.5 us
+    clock.now = 100.519  # the output at 1521.4 us, the frame's pulse at 1502.5
+    assert emu.pulse(0) == pytest.approx(1521.405) and qp() == 150
+    clock.now = 100.52
+    assert qp() == 152
+    clock.now = 100.53
+    send(ser, emu, b"#0P1000S2000\r")  # turns back at 1532.35 us, 10 ms into the frame
+    clock.now = 100.535
+    assert emu.pulse(0) == pytest.approx(1522.35) and qp() == 152  # (the frame's: 1522.4 us at 100.52)
+    clock.now = 100.54
+    assert qp() == 151  # 1532.35 - 2000 us/s x 0.01 s
+    clock.now = 100.545
+    send(ser, emu, b"#0P1200\r")  # an immediate move: a jump
+    assert qp() == 120
+    send(ser, emu, b"#0P1300S1000\r")  # from 1200 us, in the same frame
+    clock.now = 100.5595  # the output at 1214.5 us; the frame's pulse: 1200 (the jump)
+    assert qp() == 120
+    emu.frame = 0.0
+    assert qp() == 121
+
+
+def test_a_slow_host_holds_its_bytes_and_what_it_writes_meanwhile_goes_with_them() -> None:
+    """``hold_input``: the first bytes written are held (here 15 ms), bytes written meanwhile go
+    with them, then both cross the link; bytes written after the hold are held afresh;
+    ``hold_input(0)`` ends it. Exact on a frozen clock."""
+    clock = FakeClock()
+    dt = byte_time(115200)
+    a, b = b"#0P1500\r", b"#0P1600#1P1500\r"
+    with SSC32Emulator(clock=clock) as emu, serial.Serial(emu.port, 115200, timeout=1) as ser:
+        with pytest.raises(ValueError, match="shortest"):
+            emu.hold_input(0.02, 0.01)
+        emu.hold_input(0.015)
+        ser.write(a)
+        wait_for(lambda: emu.link_backlog() > 0)  # read at 100.0: held until 100.015
+        assert emu.link_backlog() == pytest.approx(0.015 + len(a) * dt)
+        clock.now = 100.005
+        ser.write(b)
+        wait_for(lambda: emu.link_backlog() > 0.010 + len(a) * dt + 1e-9)  # read at 100.005: with them
+        assert emu.link_backlog() == pytest.approx(0.010 + (len(a) + len(b)) * dt)
+        clock.now = 100.015 + len(a) * dt - 1e-9
+        time.sleep(0.02)
+        assert emu.history == []
+        clock.now = 100.1
+        wait_for(lambda: len(emu.history) == 2)
+        assert emu.history[0].time == pytest.approx(100.015 + len(a) * dt, abs=1e-9)
+        assert emu.history[1].time == pytest.approx(100.015 + (len(a) + len(b)) * dt, abs=1e-9)
+        ser.write(a)  # after the hold: held afresh
+        wait_for(lambda: len(emu.history) == 2 and emu.link_backlog() > 0)
+        clock.now = 100.2
+        wait_for(lambda: len(emu.history) == 3)
+        assert emu.history[2].time == pytest.approx(100.115 + len(a) * dt, abs=1e-9)
+        emu.hold_input(0.0)
+        ser.write(a)
+        wait_for(lambda: emu.link_backlog() > 0)
+        assert emu.link_backlog() == pytest.approx(len(a) * dt)
+        emu.hold_input(0.01, 0.02)  # a hold drawn evenly between the two
+        clock.now = 101.0
+        ser.write(a)
+        wait_for(lambda: emu.link_backlog() > len(a) * dt + 1e-9)
+        assert 0.01 <= emu.link_backlog() - len(a) * dt <= 0.02

@@ -17,8 +17,14 @@ and only then takes effect:
   Pulses outside 500-2500 us are clamped (as users measured on the board) and recorded in ``out_of_range``;
   ``P0`` turns the channel's pulses off (the real board's undocumented behaviour), and is recorded too.
 - ``Q<cr>``: ``+`` while a move is in progress, ``.`` when done; no carriage return.
-- ``QP<ch><cr>`` (also ``QP<ch>QP<ch>...``): one binary byte per channel, pulse width / 10 (0 if off),
-  from the board's own interpolation at the moment the query is executed (its ``\\r`` has arrived).
+- ``QP<ch><cr>`` (also ``QP<ch>QP<ch>...``): one binary byte per channel, pulse width / 10 (0 if off):
+  the guide's "single byte ... indicating the pulse width of the selected servo with a resolution of
+  10uS". The board outputs a channel's pulse once every 20 ms (the guide: an R/C pulse "repeated every
+  20ms"), and a pulse has one width: ``QP`` answers the width of the frame in progress when the query
+  is executed (its ``\\r`` has arrived): the board's interpolation at that frame's start (frames every
+  ``frame`` s from the board's start), or where the channel jumped to since (a first command, an
+  immediate move: at once). A servo moving at 1910 us/s (3 rad/s on an AL5 arm) answers up to 38 us
+  behind the interpolation, and the 10 us of the byte more.
 - ``VER<cr>``: the version string and a carriage return.
 - ``STOP<ch><cr>`` (SSC-32U): stops that servo where it is. As the guide says, ``Q`` still answers
   ``+`` until the original move's time has elapsed.
@@ -57,14 +63,25 @@ The link and the board's timing (``baud``, ``query_delay``; all times on ``clock
   holds, and jumps (zero-length segments: a first move, an immediate move, ``P0``, a power cycle).
 - ``delay_input(seconds)``: the host holds the next bytes written that long before the board has them
   (a USB-serial link's or a terminal's latency, now and then: the host's timing, for tests).
+- ``hold_input(shortest, longest)``: from then on a slow host (a busy machine's kernel thread that
+  carries the terminal's bytes, a USB-serial link that waits to fill its packets): each time bytes
+  are written while none are held, they are held a time drawn evenly from ``shortest`` to
+  ``longest`` [s] (a fixed seed: the same draws every run), and bytes written meanwhile go with
+  them; then they cross the link as ever. Every line then reaches the board late, by a varying
+  delay, and a query written soon after a line is delayed less than the line. ``hold_input(0)`` ends it.
+  The emulator's thread never waits for a hold: replies leave on time.
 
 Where the real board differs, or may:
 
 - It drives real servos, which have their own maximum speed and lag; here the pulse *is* the position.
 - It outputs each channel's pulse once every 20 ms (the guide: an R/C pulse "repeated every 20ms"), so a
-  servo sees the interpolation at each frame; here the output is the interpolation itself, continuous
-  in time (stricter: a change of speed between two frames counts as it happens). Its resolution is not
-  documented. ``QP`` here truncates the pulse to 10 us (whether the board rounds is not documented).
+  servo sees the interpolation at each frame; here the output (``segments``) is the interpolation itself,
+  continuous in time (stricter: a change of speed between two frames counts as it happens), and only
+  ``QP`` sees the frames. The output's resolution is not documented. ``QP`` here truncates the pulse to
+  10 us (whether the board rounds is not documented). When in a frame the board's interpolation steps,
+  and whether a command received during a frame changes that frame's pulse, are not documented: here the
+  interpolation is exact, a command takes effect when its ``\\r`` arrives, and ``QP`` sees a move from the
+  next frame, a jump at once.
 - Whether the board parses further commands while it waits to answer a query is not documented: here it
   does (the reply is delayed, the parser is not). Its own receive buffer is not modelled: it never overflows.
 - A host that opens the port at another rate than ``baud`` (pyserial sets it on the terminal) gets
@@ -81,9 +98,11 @@ Where the real board differs, or may:
 from __future__ import annotations
 
 import argparse
+import bisect
 import contextlib
 import math
 import os
+import random
 import re
 import select
 import termios
@@ -101,6 +120,7 @@ PULSE_MAX = 2500  # [us]
 CHANNELS = 32
 TIME_MAX = 65535  # [ms], the longest T the board takes
 ANALOG_PINS = "ABCDEFGH"  # the SSC-32U's analog inputs
+FRAME = 0.02  # [s] the guide: a servo's pulse is "repeated every 20ms"
 ANALOG_SETTLE = 0.008  # [s] the guide: filtered values "settle to their final values within 8 mS of a change"
 BITS_PER_BYTE = 10  # 8N1: a start bit, 8 data bits, a stop bit
 FACTORY_BAUD = 9600  # the SSC-32U as shipped
@@ -155,7 +175,9 @@ class _Servo:
 class SSC32Emulator(PtyEmulator):
     """An SSC-32 on a pseudo-terminal; ``start()`` (or ``with``) returns the path to open with pyserial.
 
-    ``baud``: the link's rate [bit/s] (None: instant); ``query_delay`` [s]: how long after a query is
+    ``baud``: the link's rate [bit/s] (None: instant); ``frame`` [s]: how often the board outputs a
+    pulse (the width ``QP`` answers is the frame's; 0: ``QP`` answers the interpolation itself, for
+    exact tests); ``query_delay`` [s]: how long after a query is
     executed its reply leaves the board; ``clock`` [s]: the emulator's time, for every timestamp.
     """
 
@@ -169,16 +191,21 @@ class SSC32Emulator(PtyEmulator):
         clock: Callable[[], float] = time.monotonic,
         baud: int | None = DEFAULT_BAUD,
         query_delay: float = 100e-6,
+        frame: float = FRAME,
     ) -> None:
         if baud is not None and baud <= 0:
             raise ValueError(f"baud must be positive or None, not {baud}")
         if not query_delay >= 0:
             raise ValueError(f"query_delay must be >= 0 s, not {query_delay}")
+        if not frame >= 0:
+            raise ValueError(f"frame must be >= 0 s, not {frame}")
         super().__init__()
         self.version = version
         self.clock = clock  # [s]
         self.baud = baud
         self.query_delay = query_delay  # [s]
+        self.frame = frame  # [s]
+        self._frame0 = clock()  # [s] the board's frames start every ``frame`` from here
         self.history: list[GroupMove] = []
         self.out_of_range: list[tuple[int, int]] = []  # (channel, pulse [us]) received outside 500..2500
         self.errors: list[str] = []  # lines not understood, as received
@@ -187,6 +214,9 @@ class SSC32Emulator(PtyEmulator):
         self.analog: Callable[[str, float, Callable[[int, float], float]], float] | None = None
         self._analog_pins: set[str] = set()  # pins a V* read has made analog (until a power cycle)
         self._input_delay = 0.0  # [s] how long the host holds the next bytes written (delay_input)
+        self._hold = (0.0, 0.0)  # [s] the shortest and longest a slow host holds bytes (hold_input)
+        self._held_until = -math.inf  # [s] when the bytes held now reach the link
+        self._hold_draws = random.Random(0)
         self._servos: dict[int, _Servo] = {}  # channels with pulses
         self._off_since: dict[int, float] = {}  # channels turned off (P0, power cycle): since when [s]
         self._trace: dict[int, list[Segment]] = {}  # closed segments, per channel
@@ -268,7 +298,28 @@ class SSC32Emulator(PtyEmulator):
         with self._lock:
             self._input_delay = float(seconds)
 
+    def hold_input(self, shortest: float, longest: float | None = None) -> None:
+        """From now on the host holds the bytes written to the port before the board has them,
+        as a busy host's kernel thread or a slow USB-serial link does: each time bytes are
+        written while none are held, they are held a time drawn evenly from ``shortest`` to
+        ``longest`` [s] (``shortest`` if None), and bytes written meanwhile go with them.
+        ``hold_input(0)`` ends it. (The host's timing, not the board's: for tests of late lines.)"""
+        longest = shortest if longest is None else longest
+        if not 0.0 <= shortest <= longest:
+            raise ValueError(f"need 0 <= shortest <= longest [s], not {shortest}, {longest}")
+        with self._lock:
+            self._hold = (float(shortest), float(longest))
+            self._held_until = -math.inf
+
     # -- the link ------------------------------------------------------------------------------
+
+    def _held(self, now: float) -> float:
+        """When bytes the emulator reads at ``now`` leave the host (after a slow host's hold)."""
+        if self._hold[1] <= 0.0:
+            return now
+        if now >= self._held_until:  # none held: these start a hold, and what comes during it joins them
+            self._held_until = now + self._hold_draws.uniform(*self._hold)
+        return self._held_until
 
     def _byte_time(self) -> float:
         return 0.0 if self.baud is None else BITS_PER_BYTE / self.baud
@@ -337,7 +388,8 @@ class SSC32Emulator(PtyEmulator):
                         self.errors.append(f"<{len(chunk)} bytes sent at {host_baud} baud to a board at {self.baud}>")
                         self._line.clear()
                     else:
-                        self._receive(chunk, self.clock())
+                        now = self.clock()
+                        self._receive(chunk, self._held(now) if chunk else now)
             with self._lock:
                 self._advance()
 
@@ -355,7 +407,7 @@ class SSC32Emulator(PtyEmulator):
         if _QUERY_PULSES.fullmatch(cmd):
             channels = [int(c) for c in re.findall(r"\d+", cmd)]
             if all(ch < CHANNELS for ch in channels):
-                return bytes(min(255, int(self._pulse_at(ch, now)) // 10) for ch in channels)
+                return bytes(min(255, int(self._frame_pulse(ch, now)) // 10) for ch in channels)
         elif _ANALOG.fullmatch(cmd):
             return bytes(self._analog_read(pin, now) for pin in cmd[1::2])
         elif (m := _STOP.fullmatch(cmd)) and int(m[1]) < CHANNELS:
@@ -377,6 +429,31 @@ class SSC32Emulator(PtyEmulator):
     def _pulse_at(self, channel: int, now: float) -> float:
         servo = self._servos.get(channel)
         return 0.0 if servo is None else servo.at(now)
+
+    def _frame_pulse(self, channel: int, now: float) -> float:
+        """The width [us] of ``channel``'s pulse in the frame in progress at ``now`` [s]: its
+        output at the frame's start, or where it last jumped since (a jump shows at once); its
+        pulse now if it had none."""
+        servo = self._servos.get(channel)
+        if servo is None:
+            return 0.0
+        if self.frame <= 0.0:
+            return servo.at(now)
+        start = self._frame0 + math.floor((now - self._frame0) / self.frame + 1e-9) * self.frame
+        if start >= servo.t0:
+            return servo.at(start)
+        if servo.t1 == servo.t0:  # (a jump: a first command, an immediate move)
+            return servo.target
+        trace = self._trace.get(channel, [])
+        k = bisect.bisect_right(trace, start, key=lambda seg: seg[0]) - 1
+        width = 0.0
+        if k >= 0:
+            t0, t1, p0, p1 = trace[k]
+            width = p1 if t1 <= t0 or start >= t1 else p0 + (p1 - p0) * (start - t0) / (t1 - t0)
+        for t0, t1, _, p1 in trace[k + 1 :]:  # (since the frame's start: a jump sets the pulse at once)
+            if t1 == t0:
+                width = p1
+        return width if width > 0.0 else servo.at(now)
 
     def _open_segments(self, channel: int, now: float) -> list[Segment]:
         """The output of ``channel`` since its last change, up to ``now``: the move's part done, the hold."""
