@@ -26,7 +26,8 @@ trip against the SDK's own sync read, the bus cycles a second, the tracking erro
 stop's latency; and their fault table (bench/bus_faults_bench.py): each fault injected mid-move
 at full speed, when it was noticed, how far the arm ran on and back, how hard it braked, the
 state's rate meanwhile. GRBL's fault table (bench/grbl_faults_bench.py) the same, for an
-operator's stop and GRBL's alarms.
+operator's stop and GRBL's alarms; the SSC-32's (bench/ssc32_faults_bench.py) for a stop, an
+estop, another program's lines, an unanswered QP and a power cycle.
 
 Run: ``.venv/bin/python bench/adapters.py [--runs 3] [--only ssc32|grbl|bus]``. Prints Markdown tables.
 """
@@ -337,6 +338,10 @@ def main() -> None:
             f"{cell(res['stop'])} | {int(max(res['held'])) if res['held'] else '-'} |"
         )
     print("\n(median / worst over the runs; speed and acceleration: the worst joint of each move)")
+    if args.only in (None, "ssc32") and args.condition is None:
+        from ssc32_faults_bench import print_ssc32_fault_table, ssc32_fault_rows
+
+        print_ssc32_fault_table(ssc32_fault_rows(args.runs))
     if args.only in (None, "grbl") and args.condition is None:
         from grbl_faults_bench import grbl_fault_rows, print_grbl_fault_table
 
