@@ -34,7 +34,6 @@ well?); it may override :meth:`estimate` (the state with nothing asked of the co
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import threading
@@ -275,7 +274,7 @@ class Adapter(ABC):
 
     def _on_gripper(self, sample: zenoh.Sample) -> None:
         try:
-            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
+            msg = _control_message(sample)
             opening = msg["opening"]
             if isinstance(opening, bool) or not isinstance(opening, (int, float)) or not 0.0 <= opening <= 1.0:
                 raise ValueError(f"opening must be a number in [0, 1], got {opening!r}")
@@ -356,13 +355,12 @@ class Adapter(ABC):
         """Any put stops the arm: a malformed message too (its id is made up)."""
         ident, reason = uuid.uuid4().hex, "estop"
         try:
-            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
-            if isinstance(msg, dict):
-                if isinstance(msg.get("id"), str) and 0 < len(msg["id"]) <= 64:
-                    ident = msg["id"]
-                if isinstance(msg.get("by"), str):
-                    reason = f"estop by {msg['by'][:64]}"
-        except ValueError:
+            msg = _control_message(sample)
+            if isinstance(msg.get("id"), str) and 0 < len(msg["id"]) <= 64:
+                ident = msg["id"]
+            if isinstance(msg.get("by"), str):
+                reason = f"estop by {msg['by'][:64]}"
+        except Exception:  # (whatever the payload holds, or fails to: the arm stops)
             pass
         self.emergency_stop(ident, reason)
 
@@ -395,16 +393,14 @@ class Adapter(ABC):
 
     def _on_unlock(self, sample: zenoh.Sample) -> None:
         try:
-            msg = json.loads(sample.payload.to_bytes()[: CONTROL_BYTES + 1])
-            how = msg.get("how") if isinstance(msg, dict) else None
+            msg = _control_message(sample)
+            how = msg.get("how")
             if how not in UNLOCKS:
                 raise BadRequest(f"unlock needs 'how': one of {', '.join(UNLOCKS)}", field="how")
             with self._lock:
                 if self._cmd is not None and not self._finished:
                     raise BadRequest("the arm is moving: stop it before unlocking", field="how")
                 self._unlock = how
-        except ValueError as e:
-            self.event("rejected", reason=f"unlock: not JSON ({e})")
         except ArmdError as e:
             self.event("rejected", reason=f"unlock: {e.message}", error=e.to_dict())
 
@@ -606,3 +602,19 @@ def _claimed_id(payload: bytes) -> dict[str, str]:
     except (orjson.JSONDecodeError, AttributeError):
         return {}
     return {"id": ident} if isinstance(ident, str) and 0 < len(ident) <= 64 else {}
+
+
+def _control_message(sample: zenoh.Sample) -> dict[str, Any]:
+    """The JSON object of an estop, gripper or unlock put, or :class:`BadRequest` saying why
+    not: over ``CONTROL_BYTES`` (not copied), not JSON (orjson: any nesting is an error, never a
+    recursion), not an object."""
+    size = len(sample.payload)
+    if size > CONTROL_BYTES:
+        raise BadRequest(f"the message has {size} bytes, more than {CONTROL_BYTES}", field="payload")
+    try:
+        msg = orjson.loads(sample.payload.to_bytes())
+    except orjson.JSONDecodeError as e:
+        raise BadRequest(f"not JSON ({e})", field="payload") from None
+    if not isinstance(msg, dict):
+        raise BadRequest(f"not a JSON object (a {type(msg).__name__})", field="payload")
+    return msg

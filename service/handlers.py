@@ -88,7 +88,8 @@ class Handlers:
         self.limits = limits
         self.publish = publish
         self.adapters = adapters
-        self._world_lock = threading.Lock()  # (world changes, one at a time)
+        self._world_lock = threading.Lock()  # (world changes, one at a time; never on a stop's path)
+        self._sequence_lock = threading.Lock()  # (stop counts and the arms sequencing: held for a few lines)
         # an arm's obstacles from robot.toml: those it has at its first world request (only
         # this verb changes the world)
         self._fixed: dict[str, frozenset[str]] = {}
@@ -220,8 +221,8 @@ class Handlers:
         duration and rest pose are the service's estimate from what it knows of the arm."""
         check(NOTHING, req)
         ident = uuid.uuid4().hex
+        self.publish_estop(arm, {"id": ident, "by": "service"})  # (first: before anything that could wait)
         self.note_stop(arm.name)
-        self.publish_estop(arm, {"id": ident, "by": "service"})
         known = self.book.current(arm)
         try:
             traj = planning.plan_stop(arm, known.state, clamp=True)
@@ -250,7 +251,7 @@ class Handlers:
 
     def note_stop(self, robot: str) -> None:
         """The arm was stopped (a ``stop``, an adapter's abort or estop): a pick or place under way ends."""
-        with self._world_lock:
+        with self._sequence_lock:
             self._stop_counts[robot] = self._stop_counts.get(robot, 0) + 1
 
     # -- sequences: pick and place -------------------------------------------------------------
@@ -278,7 +279,7 @@ class Handlers:
         on_arm = _reads_on_the_arm(arm, req)
         known = self._present(arm, req) if on_arm else self.book.current(arm)
         point = sequence_point(arm, req["target"], known.state.position if on_arm else None)
-        with self._world_lock:
+        with self._sequence_lock:
             stops = self._stop_counts.get(arm.name, 0)
             if arm.name in self._sequencing:
                 raise Busy(f"{arm.name} is running a pick or place already: one at a time", robot=arm.name)
@@ -287,7 +288,7 @@ class Handlers:
         try:
             return self._run_sequence(arm, asked, deadline, known.state, stops)
         finally:
-            with self._world_lock:
+            with self._sequence_lock:
                 self._sequencing.discard(arm.name)
 
     def _run_sequence(
@@ -391,9 +392,11 @@ class Handlers:
                 if not any(o.name == name for o in obstacles):
                     raise BadRequest(f"{field}: {arm.name}'s world has no obstacle {name!r}", field=field)
                 obstacles = [o for o in obstacles if o.name != name]
-            links = set(model.links) - {o.name for o in model.obstacles}  # (the links and the ground)
-            for i, spec in enumerate(req.get("add", [])):
-                obstacles.append(_obstacle(spec, f"add[{i}]", links | {o.name for o in obstacles}))
+            taken = set(model.links) - {o.name for o in model.obstacles} | {o.name for o in obstacles}
+            for i, spec in enumerate(req.get("add", [])):  # (the links, the ground, the obstacles so far)
+                deadline.check()
+                obstacles.append(_obstacle(spec, f"add[{i}]", taken))
+                taken.add(obstacles[-1].name)
             if len(obstacles) - len(fixed) > MAX_OBSTACLES:
                 raise BadRequest(
                     f"at most {MAX_OBSTACLES} obstacles may be added to an arm's world, this would make "

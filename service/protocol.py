@@ -77,7 +77,7 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
         raise BadRequest(f"the request must be a JSON object, got {type(obj).__name__}", field="payload")
     # Every level of nesting opens with a bracket, and a scalar adds one: with fewer brackets
     # than the limit the request cannot be too deep, and is not walked (one target: two).
-    if payload.count(b"[") + payload.count(b"{") >= limits.max_depth and _depth(obj, 1) > limits.max_depth:
+    if payload.count(b"[") + payload.count(b"{") >= limits.max_depth and _deeper_than(obj, limits.max_depth):
         raise BadRequest(f"the request is nested deeper than {limits.max_depth} levels", field="payload")
     version = obj.get("protocol")
     if version is None:  # absent, or null: an optional field given as null is absent
@@ -89,18 +89,21 @@ def decode(payload: bytes | None, limits: Limits) -> dict[str, Any]:
     return obj
 
 
-def _depth(obj: object, level: int) -> int:
-    """Nesting depth of parsed JSON (a scalar inside a container is one level deeper)."""
-    values = obj.values() if isinstance(obj, dict) else obj
-    deepest = level
-    for v in values:  # type: ignore[attr-defined]
-        if isinstance(v, (dict, list)):
-            d = _depth(v, level + 1)
-            if d > deepest:
-                deepest = d
-        elif deepest == level:
-            deepest = level + 1
-    return deepest
+def _deeper_than(obj: object, limit: int) -> bool:
+    """Whether parsed JSON nests deeper than ``limit`` levels (a scalar inside a container is one
+    level deeper). Walked with a stack of its own, and left as soon as the limit is passed: no
+    nesting (orjson parses up to 1024 levels) reaches Python's recursion limit here."""
+    stack: list[tuple[object, int]] = [(obj, 1)]
+    while stack:
+        node, level = stack.pop()
+        for v in node.values() if isinstance(node, dict) else node:  # type: ignore[attr-defined]
+            if isinstance(v, (dict, list)):
+                if level + 1 > limit:
+                    return True
+                stack.append((v, level + 1))
+            elif level + 1 > limit:
+                return True
+    return False
 
 
 def encode(obj: Mapping[str, Any]) -> bytes:
@@ -313,11 +316,13 @@ class Rows(Shape):
 
 @dataclass(frozen=True)
 class ListOf(Shape):
-    """A list, each item of ``item``'s shape (``field[i]``), at least ``min_items`` of them."""
+    """A list, each item of ``item``'s shape (``field[i]``), at least ``min_items`` of them and
+    at most ``max_items`` (counted before any item is looked at: a long list costs nothing)."""
 
     item: Shape
     min_items: int = 0
     items_are: str = ""  # what the items are, for messages (default: the item's shape says)
+    max_items: int | None = None
 
     @property
     def what(self) -> str:  # type: ignore[override]
@@ -329,6 +334,8 @@ class ListOf(Shape):
         items = _items(v)
         if len(items) < self.min_items:
             raise BadRequest(f"{field} must have at least {self.min_items} item(s), got {len(items)}", field=field)
+        if self.max_items is not None and len(items) > self.max_items:
+            raise BadRequest(f"{field} may have at most {self.max_items} item(s), got {len(items)}", field=field)
         out = [self.item.check(x, f"{field}[{i}]", joints) for i, x in enumerate(items)]
         return v if all(a is b for a, b in zip(out, items, strict=True)) else out
 
@@ -575,8 +582,8 @@ OBSTACLE = Obj(
 )
 WORLD = Obj(
     {
-        "add": ListOf(OBSTACLE, min_items=1, items_are="obstacles"),
-        "remove": ListOf(Word(), min_items=1, items_are="obstacle names"),
+        "add": ListOf(OBSTACLE, min_items=1, items_are="obstacles", max_items=MAX_OBSTACLES),
+        "remove": ListOf(Word(), min_items=1, items_are="obstacle names", max_items=MAX_OBSTACLES),
         "clear": Flag(),
     },
     top=True,
