@@ -411,6 +411,11 @@ class Adapter(ABC):
             now = time.monotonic()
             cmd, finished = None, True
             try:
+                with self._lock:  # an operator's unlock, taken before the check: it is what ends a
+                    # fault whose check fails until someone acts (GRBL's limit alarm wants a reset)
+                    unlock, self._unlock = (self._unlock, None) if self._finished else (None, self._unlock)
+                if unlock is not None:
+                    self._do_unlock(unlock)
                 if now >= next_check:
                     next_check = now + self.check_period
                     self.check()
@@ -418,10 +423,7 @@ class Adapter(ABC):
                         self._recovered()
                 with self._lock:  # (after the check, which may have ended or replaced the trajectory)
                     cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
-                    unlock, self._unlock = (self._unlock, None) if finished else (None, self._unlock)
                     self._new = False
-                if unlock is not None:
-                    self._do_unlock(unlock)
                 # (a stop runs under a fault too: the one that brakes the arm after it)
                 if cmd is not None and not finished and (not self.fault or cmd.kind == "stop"):
                     if first:

@@ -323,7 +323,7 @@ class GrblAdapter(SerialAdapter):
         self._steps = np.zeros(len(self.axes), dtype=np.int64)  # GRBL's machine position [steps]
         self._last_status = 0.0
         self._asked = 0.0
-        self._reset_wanted = False  # GRBL said "Reset to continue"
+        self._reset_wanted = False  # GRBL said "Reset to continue": it answers nothing, not even '?', until a reset
         self._holding: float | None = None  # a feed hold is under way: its deadline
         self._streaming = False
         self._speed = 0.0  # [deg/s] the speed along its path GRBL last reported
@@ -703,10 +703,11 @@ class GrblAdapter(SerialAdapter):
 
     def _hold_complete(self) -> bool:
         """Advance a feed hold: True once GRBL is at rest and its buffers are empty (soft reset in
-        Hold:0), or it is in an alarm (no reset: an operator must act)."""
+        Hold:0), or it is in an alarm (no reset: an operator must act; a limit alarm stopped it and
+        answers no status request until then)."""
         assert self._holding is not None
         self._pump()
-        if self._fresh and self._state == "Alarm":
+        if self._reset_wanted or (self._fresh and self._state == "Alarm"):
             self._holding = None
             self._queue.clear()
             self._pending.clear()
@@ -850,7 +851,7 @@ class GrblAdapter(SerialAdapter):
         """The position GRBL last reported, through the offset (a status report is asked for at
         every call: the control loop parses the answer); velocity and acceleration as planned
         where GRBL is, the velocity at the speed GRBL reports (:meth:`_motion`)."""
-        if time.monotonic() - self._asked >= STATUS_EVERY:
+        if time.monotonic() - self._asked >= STATUS_EVERY and not self._reset_wanted:
             self._write(b"?")
             self._asked = time.monotonic()
         return JointState(self._joints(self._steps), self._v.copy(), self._a.copy())
@@ -868,12 +869,15 @@ class GrblAdapter(SerialAdapter):
             if not running:  # a hold from a fault or an estop with nothing running: complete it here
                 while not self._hold_complete():
                     time.sleep(0.002)
+        if self._reset_wanted:  # a limit alarm: GRBL stopped and answers no '?' until a reset, which
+            return  # only an operator's unlock sends; what it said stands (homed false: position_unknown)
         self._poll_status(wait=True)
 
     def unlock(self, how: str) -> None:
         if self._holding is not None:
             while not self._hold_complete():
                 time.sleep(0.002)
+        self._operator_reset()  # (a limit alarm answers nothing else, status requests included)
         self._poll_status(wait=True)
         if how == "home":
             if not self.homing:

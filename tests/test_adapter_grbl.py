@@ -221,9 +221,11 @@ def test_alarm_mid_move_faults_and_waits_for_an_operator(
         wait_for(lambda: writes.data.count(b"!") > holds, timeout=5, what="a feed hold")
         time.sleep(0.3)
         assert b"\x18" not in writes.data and emu.state == "Alarm"
-        with pytest.raises(ServiceError) as refused:
-            client.move(ARM, arm.neutral)
+        with pytest.raises(ServiceError) as refused:  # (GRBL answers no '?' in a limit alarm: the adapter
+            client.move(ARM, arm.neutral)  # must not take that for a controller gone)
         assert refused.value.code == "position_unknown"
+        faults = [e for e in events if e["event"] == "fault"]
+        assert [e["reason"] for e in faults] == [faults[0]["reason"]], faults  # the alarm alone: no "does not answer"
         answer = client.unlock(ARM, "assume_rest", wait=10)  # the operator: the arm is at rest (say)
         assert answer is not None and answer["event"] == "unlocked", answer
         assert "$X" in emu.lines and b"\x18" in writes.data  # because the operator said so

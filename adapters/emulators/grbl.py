@@ -73,10 +73,12 @@ Covered:
   no deceleration: a real machine may lose steps there and its position then be wrong (here both
   positions stay consistent). A soft limit (``inject_alarm(2)``, or with ``$20=1`` a target
   outside ``[-$13x, 0]``) first stops under control like a feed hold, so no position is lost. Both
-  then print ``ALARM:n`` and ``[MSG:Reset to continue]``, read no line until a reset (real-time
-  ``?`` still answered), and after it stay in Alarm until ``$X`` or ``$H``; G-code is ``error:9`` in
-  Alarm. A reset while moving is ``ALARM:3``, not when stopped (Idle, ``Hold:0``): the position is
-  kept. A line the parser was inside of at a reset is answered ``ok`` (gc_execute_line returns).
+  then print ``ALARM:n`` and ``[MSG:Reset to continue]``, read no line and answer no ``?``
+  until a reset (protocol.c's critical loop does nothing but wait for the reset flag, and the
+  reset clears a status request made meanwhile), and after it stay in Alarm until ``$X`` or
+  ``$H``; G-code is ``error:9`` in Alarm. A reset while moving is ``ALARM:3``, not when stopped
+  (Idle, ``Hold:0``): the position is kept. A line the parser was inside of at a reset is
+  answered ``ok`` (gc_execute_line returns).
 - Lines end with ``\\n`` or ``\\r``, each of which ends a line: ``\\r\\n`` is a line and an empty
   line, answered ``ok`` twice, as GRBL does. Spaces, ``(...)`` and ``;`` comments are dropped and
   letters upcased; a line longer than 79 characters is ``error:11``. A number counts 8 digits at
@@ -862,6 +864,7 @@ class GrblEmulator(PtyEmulator):
         self._send(f"ALARM:{code}")
         self._send("[MSG:Reset to continue]")
         self._critical = True
+        self._status_due = None  # (a report asked before it is never made: the alarm comes first)
 
     def _soft_limit(self) -> None:
         """limits.c's limits_soft_check: a controlled stop (a feed hold) if moving, then ALARM:2."""
@@ -1184,7 +1187,8 @@ class GrblEmulator(PtyEmulator):
             if c == _RESET:
                 self._soft_reset()
             elif c == _STATUS:
-                if self._status_due is None:  # GRBL's report flag: a '?' before the report is merged into it
+                # (protocol.c's critical loop: no report until the reset, which clears the flag)
+                if self._status_due is None and not self._critical:  # GRBL's report flag: a '?' merges into it
                     self._status_due = time.monotonic() + self.status_delay
                     if self.status_delay <= 0.0:
                         self._status_report()
