@@ -81,6 +81,7 @@ import contextlib
 import json
 import logging
 import math
+import re
 import time
 from pathlib import Path
 
@@ -93,7 +94,7 @@ from armd.planning import JointState
 from armd.robots import Robot, Servo
 
 from .base import actuators_of, calibrated, state_dir_default
-from .serial_port import SerialAdapter
+from .serial_port import PORT_ERRORS, SerialAdapter
 from .ssc32_sensors import SCAN_SPEED, WiredSensors
 from .trajectory_message import Command, FloatArray
 
@@ -117,6 +118,9 @@ RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time
 
 
 SPEED_MAX = 65535  # [us/s] the largest S the adapter writes (the board's default speed: no limit)
+# What VER answers on an SSC-32 (firmware-dependent: SSC32-V2.50USB, SSC32-1.06XE, SSC32-2.01GP):
+# anything else on the port is not one, and nothing is sent to it
+VERSION = re.compile(r"SSC-?32[-\w. ]{0,32}")
 
 
 def _on_piece(
@@ -243,10 +247,11 @@ class SSC32Adapter(SerialAdapter):
         self._still: FloatArray | None = None  # [us] faulted: the answer the board has given since _same_since
         self._same_since = math.inf  # [s] faulted: when the first of the same answers was asked for
         self._dark = False  # a channel found without a pulse (a reset, a power cycle): nothing is sent until a restart
-        self.version = self._ask(b"VER\r", until=b"\r").decode(errors="replace").strip()
-        if not self.version:
+        try:
+            self.version = self._identify()
+        except ControllerFault:
             self.serial.close()
-            raise ControllerFault(f"no SSC-32 answers on {port} at {self.baud} baud (VER got no reply)")
+            raise
         log.info("%s on %s at %d baud: %s", robot.name, port, self.baud, self.version)
         self._sensor_pubs = {
             s.name: session.declare_publisher(f"{self._base}/sensors/{s.name}")
@@ -259,6 +264,19 @@ class SSC32Adapter(SerialAdapter):
         self.activate()
 
     # -- start-up -------------------------------------------------------------------------
+
+    def _identify(self) -> str:
+        """What ``VER`` answers, if it is an SSC-32's (:data:`VERSION`); :class:`ControllerFault` if not."""
+        raw = self._ask(b"VER\r", until=b"\r", size=64)
+        if not raw.strip():
+            raise ControllerFault(f"no SSC-32 answers on {self.port} at {self.baud} baud (VER got no reply)")
+        version = raw.decode("ascii", errors="replace").strip()
+        if not VERSION.fullmatch(version):
+            raise ControllerFault(
+                f"what answers on {self.port} is not an SSC-32: VER got {raw[:64]!r} (an SSC-32 answers like "
+                "'SSC32-V2.50USB'); nothing was sent to it"
+            )
+        return version
 
     def _start_up(self) -> None:
         """Adopt a board that outputs pulses; else command the pose the arm was left at (a jump)."""
@@ -365,6 +383,8 @@ class SSC32Adapter(SerialAdapter):
     # -- the wire ------------------------------------------------------------------------
 
     def _write(self, data: bytes) -> None:
+        if self.gone is not None:
+            raise ControllerFault(self.gone)
         try:
             with self._io:
                 self.serial.write(data)
@@ -375,8 +395,8 @@ class SSC32Adapter(SerialAdapter):
             if not self._sent_all():
                 raise ControllerFault(f"SSC-32 on {self.port}: write failed: {e}") from None
             log.info("%s: a write said it timed out with nothing left to send (this process was held)", self.robot.name)
-        except serial.SerialException as e:
-            raise ControllerFault(f"SSC-32 on {self.port}: write failed: {e}") from None
+        except PORT_ERRORS as e:
+            raise self.port_gone(e) from None
         now = time.monotonic()
         self._link_free = max(self._link_free, now) + len(data) * 10.0 / self.baud
 
@@ -388,16 +408,21 @@ class SSC32Adapter(SerialAdapter):
             return False
 
     def _ask(self, request: bytes, *, until: bytes | None = None, size: int = 1) -> bytes:
-        """A blocking question (start-up only: the control loop never waits for the board)."""
+        """A blocking question (start-up, and a port found again: the control loop never waits
+        for the board otherwise); with ``until``, at most ``size`` bytes up to it."""
+        if self.gone is not None:
+            raise ControllerFault(self.gone)
         try:
             with self._io:
                 self.serial.reset_input_buffer()
                 self.serial.write(request)
                 if until is not None:
-                    return bytes(self.serial.read_until(until))
+                    return bytes(self.serial.read_until(until, size))
                 return bytes(self.serial.read(size))
-        except (serial.SerialException, serial.SerialTimeoutException) as e:
+        except serial.SerialTimeoutException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
+        except PORT_ERRORS as e:
+            raise self.port_gone(e) from None
 
     def _qp_request(self) -> bytes:
         return ("".join(f"QP{ch}" for ch in self.channels) + "\r").encode()
@@ -689,6 +714,8 @@ class SSC32Adapter(SerialAdapter):
         return stride
 
     def execute(self, cmd: Command, t: float, first: bool) -> bool:
+        if self.gone is not None:  # (no line can go: the board holds where its last move ends)
+            raise ControllerFault(self.gone)
         self._poll_reply()
         if self._dark:  # (a board without pulses: the first line to a channel jumps its servo; nothing is sent)
             return True
@@ -758,7 +785,12 @@ class SSC32Adapter(SerialAdapter):
         An answer off the model (:meth:`_mismatch`) is asked again at once, and only a second one
         in a row, with a servo off the same way, is a fault (:meth:`_poll_reply`). Faulted, the
         board is asked every ``FAULT_QUERY_PERIOD``, and recovered (:meth:`_recover`) by an answer
-        that agrees with the model, or once it stands still elsewhere: from where it is then."""
+        that agrees with the model, or once it stands still elsewhere: from where it is then.
+
+        A port that vanished (:meth:`port_gone`) is opened again with a back-off; found again,
+        ``VER`` must answer like an SSC-32, and the board is then asked as after any fault."""
+        if self.gone is not None:
+            self._find_again()
         self._poll_reply()
         now = time.monotonic()
         if self.fault and not self._fault_noted:  # (whatever raised it: recovery needs an answer since)
@@ -792,6 +824,16 @@ class SSC32Adapter(SerialAdapter):
         if reason is not None:
             raise ControllerFault(reason)
 
+    def _find_again(self) -> None:
+        """The vanished port, opened again when its back-off allows, and ``VER`` answered like
+        an SSC-32; :class:`ControllerFault` (why not) until then."""
+        if not self.reopen(self._identify):
+            raise ControllerFault(str(self.gone))
+        now = time.monotonic()
+        log.info("%s: an SSC-32 answers on %s again: asked where the board is", self.robot.name, self.port)
+        self._query, self._reply, self._quiet_since, self._suspect = None, b"", None, None
+        self._faulted_at = self._next_query = now  # (the recovery needs an answer asked from now)
+
     def _often(self) -> float:
         """How often [s] the board is asked while faulted, or while servos found off the model
         are followed: every ``FAULT_QUERY_PERIOD``, or as often as the link's share left to the
@@ -803,11 +845,13 @@ class SSC32Adapter(SerialAdapter):
         """Write a ``QP`` of every channel (and, with ``sense``, the sensors' request: one write,
         the board's answers in order, docs: ssc32_sensors); its answer is read by later passes."""
         request = self._qp_request() + (self.sensors.request if sense else b"")
+        if self.gone is not None:
+            raise ControllerFault(self.gone)
         with self._io:
             try:
                 self.serial.reset_input_buffer()
-            except serial.SerialException as e:
-                raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
+            except PORT_ERRORS as e:
+                raise self.port_gone(e) from None
         asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
         self._write(request)
         size = len(self.channels) + (self.sensors.reply_size if sense else 0)
@@ -828,12 +872,14 @@ class SSC32Adapter(SerialAdapter):
 
     def _read_waiting(self) -> bytes:
         """Whatever the board has sent that is not read yet (never waiting)."""
+        if self.gone is not None:
+            raise ControllerFault(self.gone)
         try:
             with self._io:
                 waiting = self.serial.in_waiting
                 return bytes(self.serial.read(waiting)) if waiting else b""
-        except serial.SerialException as e:
-            raise ControllerFault(f"SSC-32 on {self.port}: read failed: {e}") from None
+        except PORT_ERRORS as e:
+            raise self.port_gone(e) from None
 
     def _poll_reply(self) -> None:
         """Read the board's answer if it has come (never waiting) and look at it: within what

@@ -65,6 +65,16 @@ class PtyEmulator(ABC):
                 os.close(fd)
         self._master = self._slave = -1
 
+    def unplug(self) -> None:
+        """The cable pulled, the board still powered: its terminal closed (the client's port
+        fails: EIO, and its path is gone), the controller's state kept for :meth:`plug`."""
+        self.stop()
+
+    def plug(self) -> str:
+        """The cable back in: a new terminal to the same controller; its path (a new one, as a
+        USB serial device may come back under another name)."""
+        return self.start()
+
     def __enter__(self: E) -> E:
         self.start()
         return self
