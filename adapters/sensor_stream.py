@@ -10,6 +10,7 @@ sensor on the arm), and for a scanner ``sweep`` (one more at each reversal) and 
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any
 
@@ -38,8 +39,22 @@ class Sweep:
         return nxt
 
 
-def reading(sensor: RangeSensor, volts: float, adapter: str, sweep: Sweep | None = None) -> dict[str, Any]:
-    """The message for ``sensor`` having put out ``volts`` now (a scanner: at ``sweep``'s bearing)."""
+class Numbering:
+    """An adapter's numbers for its readings (``seq``): each sensor's 1, 2, ..., one a reading."""
+
+    def __init__(self) -> None:
+        self._last: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def next(self, sensor: str) -> int:
+        with self._lock:
+            n = self._last[sensor] = self._last.get(sensor, 0) + 1
+        return n
+
+
+def reading(sensor: RangeSensor, volts: float, adapter: str, seq: int, sweep: Sweep | None = None) -> dict[str, Any]:
+    """The message for ``sensor`` having put out ``volts`` now (a scanner: at ``sweep``'s
+    bearing), the adapter's ``seq``-th reading of it."""
     curve = sensor.curve
     assert curve is not None
     rng = curve.distance(volts)
@@ -48,6 +63,7 @@ def reading(sensor: RangeSensor, volts: float, adapter: str, sweep: Sweep | None
         "model": sensor.model,
         "time": time.time(),
         "adapter": adapter,
+        "seq": seq,
         "volts": round(volts, 4),
         "range": None if rng is None else round(rng, 4),
         "bearing": None,

@@ -14,7 +14,8 @@ real second).
 
 A reading (JSON):
 
-- ``sensor``, ``model``, ``time`` [s, the epoch], ``adapter`` (its id);
+- ``sensor``, ``model``, ``time`` [s, the epoch], ``adapter`` (its id), ``seq`` (the sensor's
+  readings numbered 1, 2, ...: the service believes them in that order);
 - ``volts`` [V]: the sensor's output, noise included;
 - ``range`` [m]: what that output says by the model's curve, or null (nothing in range);
 - ``bearing`` [rad]: a scanner's servo angle when it read (null for a sensor on the arm);
@@ -36,7 +37,7 @@ from armd.errors import ArmdError, BadRequest
 from armd.robots import Robot, Servo
 from armd.robots.sensors import RangeSensor, models
 
-from .sensor_stream import Sweep, reading
+from .sensor_stream import Numbering, Sweep, reading
 from .trajectory_message import FloatArray
 
 SHAPES = {"cylinder": 2, "box": 3, "sphere": 1}  # each shape's size: how many numbers
@@ -199,6 +200,7 @@ class SimulatedSensors:
         self.rng = np.random.default_rng(seed)
         self.sensors = [s for s in robot.sensors.values() if s.curve is not None]
         self._sweeps = {s.name: Sweep(s) for s in self.sensors if s.mount == "scanner" and s.sweep is not None}
+        self._numbers = Numbering()
         self._lock = threading.Lock()
 
     def distance(self, origin: FloatArray, direction: FloatArray) -> float:
@@ -223,7 +225,8 @@ class SimulatedSensors:
         """One reading of ``sensor`` now, its scanner's servo then turned a step."""
         sweep = self._sweeps.get(sensor.name)
         q = None if sensor.mount == "scanner" else self.pose()
-        msg = reading(sensor, self.volts(sensor, None if sweep is None else sweep.bearing, q), self.adapter, sweep)
+        volts = self.volts(sensor, None if sweep is None else sweep.bearing, q)
+        msg = reading(sensor, volts, self.adapter, self._numbers.next(sensor.name), sweep)
         if sweep is not None:
             sweep.step()
         return msg

@@ -32,7 +32,7 @@ import numpy as np
 from armd.robots import Robot
 from armd.robots.sensors import RangeSensor
 
-from .sensor_stream import Sweep, reading
+from .sensor_stream import Numbering, Sweep, reading
 
 SCAN_SPEED = 1000  # [us/s] a scanning servo's step (2 degrees: 22 us in 22 ms)
 # (a step, then: 22 ms + 2 x 48 ms + 8 ms, and the control loop's 20 ms: about 6 readings a second,
@@ -52,6 +52,7 @@ class WiredSensors:
         self.sweeps = {s.name: Sweep(s) for s in self.sensors if s.servo is not None and s.sweep is not None}
         self.scanners = [s for s in self.sensors if s.name in self.sweeps]
         self.ready_at = 0.0  # [s] when the next read is due (monotonic)
+        self.numbers = Numbering()  # (each sensor's readings numbered: the service believes them in order)
         self.readings = 0  # published so far
         self.refused = 0  # reads not published: a scanner's servo not where it was sent (a reset board)
 
@@ -99,7 +100,7 @@ class WiredSensors:
             self.refused += 1
             return False
         for s, count in zip(self.sensors, volts, strict=True):
-            msg = reading(s, count * VOLTS_PER_COUNT, self.adapter, self.sweeps.get(s.name))
+            msg = reading(s, count * VOLTS_PER_COUNT, self.adapter, self.numbers.next(s.name), self.sweeps.get(s.name))
             self.publish(s.name, json.dumps(msg).encode())
             self.readings += 1
         for sweep in self.sweeps.values():

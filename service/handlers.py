@@ -54,7 +54,7 @@ from .protocol import (
     Limits,
     check,
 )
-from .sensor_book import SensorBook
+from .sensor_book import DISPUTE_HOLD, SensorBook
 from .sequence import ABOVE, LIFT, SPEED, Sequence, check_distance, check_speed, sequence_point
 from .sequence import steps as sequence_steps
 from .state import StateBook, implausible, reported_state
@@ -327,7 +327,10 @@ class Handlers:
     def detect(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """The objects the arm's scanners see (:mod:`solvers.detect`): in the last ``sweeps``
         complete sweeps of each (default 2: the seed's test of a stable object), waiting within
-        the deadline for them if they have not come yet."""
+        the deadline for them if they have not come yet. Only readings the sensor book believes
+        (:mod:`.sensor_book`: a live adapter's, in order, plausible); a sensor two publishers
+        dispute is ``not_ready`` at once, naming them. The reply names the adapters whose
+        readings it rests on (``adapters``)."""
         req = check(DETECT, req)
         sweeps = req.get("sweeps", 2)
         if sweeps != int(sweeps):
@@ -348,7 +351,19 @@ class Handlers:
         book = self.sensor_book
         assert book is not None
         while True:
-            got = {name: book.sweeps(arm.name, name, n) for name in names}
+            read = {name: book.read(arm.name, name, n) for name in names}
+            disputed = {name: r.disputed for name, r in read.items() if r.disputed}
+            if disputed:  # (never an answer on readings two publishers may have mixed)
+                ids = sorted({a for ids in disputed.values() for a in ids})
+                raise NotReady(
+                    f"{arm.name}'s {', '.join(disputed)} readings are disputed: two publishers under one adapter "
+                    f"id, or two adapters ({', '.join(ids)}); none is used until one alone has published in order "
+                    f"for {DISPUTE_HOLD:g} s. Ask again; if it lasts, someone else publishes on the sensors' keys",
+                    robot=arm.name,
+                    disputed=list(disputed),
+                    adapters=ids,
+                )
+            got = {name: r.sweeps for name, r in read.items()}
             short = {name: len(s) for name, s in got.items() if len(s) < n}
             if not short:
                 break
@@ -361,7 +376,12 @@ class Handlers:
                 )
             time.sleep(SENSOR_POLL)
         objects = solvers.detect(arm, got)
-        return {"objects": [o.to_dict() for o in objects], "sweeps": n, "sensors": list(names)}
+        return {
+            "objects": [o.to_dict() for o in objects],
+            "sweeps": n,
+            "sensors": list(names),
+            "adapters": sorted({r.adapter for r in read.values()}),  # (whose readings it rests on)
+        }
 
     # -- the arm's world ---------------------------------------------------------------------
 
