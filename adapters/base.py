@@ -55,7 +55,7 @@ from armd.robots import Robot
 from armd.robots import calibration as robots_calibration
 from armd.service.protocol import encode
 
-from .trajectory_message import MAX_BYTES, Command, motion, parse
+from .trajectory_message import MAX_BYTES, Command, check_size, motion, parse
 
 log = logging.getLogger(__name__)
 JSON = zenoh.Encoding.APPLICATION_JSON
@@ -284,6 +284,12 @@ class Adapter(ABC):
             self.event("rejected", reason=f"gripper command: {e}")
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
+        try:
+            check_size(len(sample.payload))  # (before it is copied)
+        except ArmdError as e:
+            log.warning("%s: trajectory rejected: %s", self.robot.name, e.message)
+            self.event("rejected", reason=e.message, error=e.to_dict())
+            return
         payload = sample.payload.to_bytes()
         try:
             cmd = parse(self.robot, payload)

@@ -79,17 +79,23 @@ def motion(position: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:
     return velocity, acceleration
 
 
+def check_size(size: int) -> None:
+    """:class:`BadRequest` for a message of ``size`` bytes over ``MAX_BYTES`` (asked before it is
+    copied or parsed)."""
+    if size > MAX_BYTES:
+        raise BadRequest(
+            f"trajectory message of {size} bytes; an adapter takes at most {MAX_BYTES}",
+            field="trajectory",
+            size=size,
+            limit=MAX_BYTES,
+        )
+
+
 def parse(robot: Robot, payload: bytes) -> Command:
     """A :class:`Command` from a trajectory message, checked by its motion against every limit
     and actuator range of ``robot`` (:class:`BadRequest` or :class:`LimitError` naming the
     first problem: nothing of a refused trajectory is executed)."""
-    if len(payload) > MAX_BYTES:
-        raise BadRequest(
-            f"trajectory message of {len(payload)} bytes; an adapter takes at most {MAX_BYTES}",
-            field="trajectory",
-            size=len(payload),
-            limit=MAX_BYTES,
-        )
+    check_size(len(payload))
     try:
         msg = orjson.loads(payload)
         if not isinstance(msg, dict):

@@ -25,7 +25,16 @@ ADAPTER_KEYS_IN = ("trajectory", "gripper", "estop", "unlock")  # what an adapte
 ADAPTER_KEYS_OUT = ("state", "events", "sensors/*")  # what it says (its range sensors' readings too)
 WATCHED = ("state", "events", "trajectory", "sensors/*")  # what an operator may watch
 READ_ONLY = ("info", "fk", "ik", "plan", "detect")  # a guest's verbs, with `robots`
-TLS_ROUTER = '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },'
+# What the router lets through, by size (its low-pass filter: larger is dropped at the router,
+# before any armd process sees it), each the limit of what reads it:
+SIZE_LIMITS = {
+    "query": 1_000_000,  # a request: the service's max_payload_bytes (service/protocol.py Limits)
+    "control": 4096,  # a gripper or unlock put: adapters/base.py CONTROL_BYTES
+    "report": 64 * 1024,  # an adapter's state, event or reading: service/server.py REPORT_BYTES
+    "trajectory": 8 * 1024 * 1024,  # adapters/trajectory_message.py MAX_BYTES
+}
+MAX_MESSAGE = 16 * 1024 * 1024  # [bytes] the most the router puts together of one message (zconfig)
+TLS_ROUTER = '// tls: { listen_certificate: "router.pem", listen_private_key: "router.key" },'
 TLS_CLIENT = '// link: { tls: { root_ca_certificate: "ca.pem" } },'
 
 
@@ -150,6 +159,13 @@ def router_config(
         ("operator", "operator", operator_rules),
         ("guest", "guest", ["guest-ask", "guest-ask-get", "see-the-service"]),
     ]
+    filters = [
+        ("requests", ["query"], [f"{p}/**"], SIZE_LIMITS["query"]),
+        # (not estop: any put on it stops the arm, whatever it holds; only the 16 MiB above bounds it)
+        ("commands", ["put"], _keys(p, "*", ("gripper", "unlock")), SIZE_LIMITS["control"]),
+        ("reports", ["put"], _keys(p, "*", ADAPTER_KEYS_OUT), SIZE_LIMITS["report"]),
+        ("trajectories", ["put"], _keys(p, "*", ("trajectory",)), SIZE_LIMITS["trajectory"]),
+    ]
     lines = [
         "// armd: a Zenoh router that authenticates every session and lets only trusted users move arms.",
         "// Written by `armd secure-setup` (armd.service.secure_setup); docs/security.md explains it.",
@@ -164,9 +180,23 @@ def router_config(
         "    shared_memory: { enabled: false },",
         "    // Every session must log in (Zenoh's user/password is all or nothing for a router).",
         f"    auth: {{ usrpwd: {{ dictionary_file: {json.dumps(users_file)} }} }},",
-        '    // TLS, where wanted: add "tls/0.0.0.0:7448" to listen.endpoints and uncomment:',
-        f"    {TLS_ROUTER}",
+        "    link: {",
+        "      // No message larger than this is put together from its fragments (Zenoh's default: 1 GiB,",
+        "      // in memory before anything can look at its size).",
+        f"      rx: {{ max_message_size: {MAX_MESSAGE} }},",
+        '      // TLS, where wanted: add "tls/0.0.0.0:7448" to listen.endpoints and uncomment:',
+        f"      {TLS_ROUTER}",
+        "    },",
         "  },",
+        "  // Sizes: what each key's reader takes at most; anything larger is dropped here, unread by any",
+        "  // armd process (a guest's 100 MB request included).",
+        "  low_pass_filter: [",
+        *(
+            f"    {{ id: {json.dumps(fid)}, flows: [\"ingress\"], messages: {json.dumps(msgs)},\n"
+            f"      key_exprs: {json.dumps(keys)}, size_limit: {limit} }},"
+            for fid, msgs, keys, limit in filters
+        ),
+        "  ],",
         "  access_control: {",
         "    enabled: true,",
         "    // Deny by default and allow each role what it needs, nothing more: a deny-list would let",

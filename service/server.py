@@ -67,6 +67,7 @@ SETTLE = 0.1  # [s] the time a report may move over, beyond the time between rep
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
 DISPUTE_HOLD = 2.0  # [s] an adapter id that two publishers use (or a replay) is not believed this long
 SAY_EVERY = 5.0  # [s] ignored states are logged at most this often, counted between
+REPORT_BYTES = 64 * 1024  # an adapter's state or event, at most (one is under 2 KB): larger is dropped unread
 UNPROVEN_MAX = 64  # early states kept for tokens not seen yet
 
 
@@ -344,6 +345,8 @@ class Service:
 
     def _on_event(self, sample: zenoh.Sample) -> None:
         """Adapters' events: an ``accepted`` or ``rejected`` of a trajectory a ``move`` waits for."""
+        if len(sample.payload) > REPORT_BYTES:  # (not copied, not parsed)
+            return
         try:
             msg = orjson.loads(sample.payload.to_bytes())
             event, ident, adapter = msg.get("event"), msg.get("id"), msg.get("adapter")
@@ -443,6 +446,9 @@ class Service:
         robot = str(sample.key_expr).split("/")[-2]
         arm = self.arms.get(robot)
         if arm is None:
+            return
+        if len(sample.payload) > REPORT_BYTES:  # (not copied, not parsed)
+            self._ignore(robot, "too large")
             return
         try:
             msg = orjson.loads(sample.payload.to_bytes())

@@ -31,7 +31,14 @@ def free_endpoint() -> str:
     return f"tcp/127.0.0.1:{free_port()}"
 
 
+# [bytes] The largest message a session puts together from its fragments (Zenoh's default: 1 GiB,
+# held in memory before anyone may look at its size): larger ones are dropped as they arrive.
+# armd's largest is a trajectory (at most 8 MiB: adapters/trajectory_message.py) or its reply.
+MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+
+
 def _quiet(conf: zenoh.Config) -> zenoh.Config:
+    conf.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     # Shared memory off: with it, every client session on this host that sends a payload over

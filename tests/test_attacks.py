@@ -7,6 +7,7 @@ import time
 from typing import Any
 
 import numpy as np
+import orjson
 import pytest
 import zenoh
 
@@ -125,3 +126,29 @@ def test_a_request_nested_to_any_depth_is_a_bad_request_never_internal(client: A
         assert len(replies) == 1 and replies[0].err is not None, (verb, depth)
         said = replies[0].err.payload.to_bytes().decode()
         assert '"bad_request"' in said and '"payload"' in said, (verb, depth, said)
+
+
+# -- size ------------------------------------------------------------------------------------------
+
+
+def test_a_request_far_over_the_cap_never_reaches_the_service(client: ArmClient, service: Any) -> None:
+    """A 40 MB request (the red team's 100 MB took the service from 177 to 309 MB before its
+    ``too_large``) is dropped as it arrives: no session of armd's puts together a message over
+    16 MiB (Zenoh's default: 1 GiB). One over the service's own 1 MB cap, and under that, is
+    answered ``too_large``, as before."""
+    time.sleep(0.3)  # (earlier tests' last replies counted)
+    before = service.stats()["served"]
+    replies = list(client.session.get("armd/gupta3/ik", payload=b" " * 40_000_000, timeout=3.0))
+    said = [(r.ok if r.ok is not None else r.err).payload.to_bytes() for r in replies]  # type: ignore[union-attr]
+    assert said in ([], [b"Timeout"]) and service.stats()["served"] == before, said  # (Zenoh's own, at 3 s)
+    (reply,) = list(client.session.get("armd/gupta3/ik", payload=b" " * 2_000_000, timeout=10.0))
+    body = (reply.ok if reply.ok is not None else reply.err).payload.to_bytes()  # type: ignore[union-attr]
+    assert orjson.loads(body)["code"] == "too_large", body
+
+
+def test_an_oversized_state_is_dropped_unread(client: ArmClient, service: Any) -> None:
+    """A state put of 1 MB (valid JSON: the red team's were 50 MB) is counted and dropped by its
+    size, never parsed."""
+    msg = {"adapter": "x", "seq": 1, "epoch": 0, "position": [0.0, 0.0, 0.0], "pad": "p" * 1_000_000}
+    client.session.put("armd/gupta3/state", orjson.dumps(msg))
+    wait_for(lambda: service._ignored.get("too large", 0) >= 1, timeout=5, what="the state dropped by its size")

@@ -155,3 +155,21 @@ if __name__ == "__main__":  # write docs/security anew
     for name, text in documented().items():
         (DOCS / name).write_text(text)
         print(DOCS / name)
+
+
+def test_the_routers_size_limits_are_their_readers() -> None:
+    """router.json5's low-pass filter drops what each key's reader would refuse anyway: the
+    numbers it writes are the readers' own (a reader's cap raised alone would be cut at the router)."""
+    from armd.adapters.base import CONTROL_BYTES
+    from armd.adapters.trajectory_message import MAX_BYTES
+    from armd.service.protocol import Limits
+    from armd.service.server import REPORT_BYTES
+    from armd.service.zconfig import MAX_MESSAGE_BYTES
+
+    assert {
+        "query": Limits().max_payload_bytes,
+        "control": CONTROL_BYTES,
+        "report": REPORT_BYTES,
+        "trajectory": MAX_BYTES,
+    } == secure_setup.SIZE_LIMITS
+    assert secure_setup.MAX_MESSAGE == MAX_MESSAGE_BYTES >= 2 * MAX_BYTES

@@ -163,10 +163,8 @@ def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
         ca_commented: f'link: {{ tls: {{ root_ca_certificate: "{certs}/ca.pem" }} }},',
         f'"tcp/127.0.0.1:{tcp_port}"': f'"tls/127.0.0.1:{tls_port}"',
     }
-    router_commented = '// link: { tls: { listen_certificate: "router.pem", listen_private_key: "router.key" } },'
-    router_tls = (
-        f'link: {{ tls: {{ listen_certificate: "{certs}/router.pem", listen_private_key: "{certs}/router.key" }} }},'
-    )
+    router_commented = '// tls: { listen_certificate: "router.pem", listen_private_key: "router.key" },'
+    router_tls = f'tls: {{ listen_certificate: "{certs}/router.pem", listen_private_key: "{certs}/router.key" }},'
 
     router_conf = _copy(
         "router.json5",
@@ -210,3 +208,23 @@ def test_tls_with_login_and_acl(tmp_path: Path, certs: Path) -> None:
         service.close()
         svc_session.close()
         router.close()
+
+
+def test_the_router_drops_what_is_over_its_readers_size(secured: dict[str, Path]) -> None:
+    """router.json5's low-pass filter: a guest's request over the service's 1 MB is dropped at
+    the router (the service never copies it); one within it is answered."""
+    arm = robots.load("gupta3")
+    svc_session = zenoh.open(network_config(config_file=str(secured["service"])))
+    service = Service(svc_session, {"gupta3": arm})
+    guest = ArmClient(config=str(secured["guest"]), timeout=2.0)
+    try:
+        assert guest.ik("gupta3", arm.fk(np.array([0.2, 1.0, -1.1])).tolist()).status == "ok"
+        wait_for(lambda: service.stats()["served"] == 1, what="the request counted")
+        before = service.stats()["served"]
+        replies = list(guest.session.get("armd/gupta3/ik", payload=b" " * 1_500_000, timeout=2.0))
+        said = [(r.ok if r.ok is not None else r.err).payload.to_bytes() for r in replies]  # type: ignore[union-attr]
+        assert said in ([], [b"Timeout"]) and service.stats()["served"] == before, said
+    finally:
+        guest.close()
+        service.close()
+        svc_session.close()
