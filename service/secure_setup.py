@@ -192,7 +192,7 @@ def router_config(
         "  // armd process (a guest's 100 MB request included).",
         "  low_pass_filter: [",
         *(
-            f"    {{ id: {json.dumps(fid)}, flows: [\"ingress\"], messages: {json.dumps(msgs)},\n"
+            f'    {{ id: {json.dumps(fid)}, flows: ["ingress"], messages: {json.dumps(msgs)},\n'
             f"      key_exprs: {json.dumps(keys)}, size_limit: {limit} }},"
             for fid, msgs, keys, limit in filters
         ),
