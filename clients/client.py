@@ -25,6 +25,8 @@ from armd.service.zconfig import client_config
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
+RETRY_PAUSE = 0.02  # [s] a request that ended at once with no reply is asked again after this, doubling ...
+NOBODY_S = 1.0  # [s] ... for this long (or half the timeout): then nothing serves its key
 
 
 @dataclass(frozen=True)
@@ -167,7 +169,9 @@ class ArmClient:
         wait = self.timeout if timeout is None else timeout
         querier = self._querier(key, wait)
         started = time.monotonic()
-        for _attempt in range(2):  # a replica that died with the query in flight: ask once more
+        pause, timeouts, at_once = RETRY_PAUSE, 0, False
+        while True:
+            asked = time.monotonic()
             for reply in querier.get(payload=payload, encoding=JSON):
                 if reply.ok is not None:
                     out: dict[str, Any] = orjson.loads(reply.ok.payload.to_bytes())
@@ -180,7 +184,20 @@ class ArmClient:
                 except ValueError:  # Zenoh's own error (a timeout): not a service reply
                     break
                 raise from_reply(obj if isinstance(obj, dict) else {"code": "internal", "message": str(obj)})
-        if time.monotonic() - started < wait / 2:  # ended at once: nothing on the network serves the key
+            now = time.monotonic()
+            at_once = now - asked < wait / 2
+            if not at_once:  # (a replica that died with the query in flight: ask once more)
+                timeouts += 1
+                if timeouts >= 2:
+                    break
+                continue
+            # ended at once: nothing serves the key now (replicas handing over who serves what
+            # changes the arms, for milliseconds; or nothing at all): asked again for a while
+            if now - started >= min(wait / 2, NOBODY_S):
+                break
+            time.sleep(pause)
+            pause = min(2.0 * pause, 0.2)
+        if at_once:
             raise NoReply(
                 f"no armd service answered {self.prefix}/{key}: nothing on the network serves it "
                 "(no service for this robot, or an access-control list that refuses it to this user "

@@ -93,6 +93,19 @@ def router_config(
         _rule("service-tokens", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [f"{p}/*/adapter/*"]),
         _rule("service-tokens-get", "egress", ["liveliness_token", "reply"], [f"{p}/*/adapter/*"]),
         _rule("service-own-token", "ingress", ["liveliness_token"], [f"{p}/service/*"]),
+        "      // (replicas: each follows the others' tokens and shares the arms' run-time obstacles)",
+        _rule(
+            "service-replicas",
+            "ingress",
+            ["declare_liveliness_subscriber", "liveliness_query", "put", "declare_subscriber"],
+            [f"{p}/service/*", *_keys(p, "*", ("obstacles",))],
+        ),
+        _rule(
+            "service-replicas-get",
+            "egress",
+            ["liveliness_token", "reply", "put", "declare_subscriber"],
+            [f"{p}/service/*", *_keys(p, "*", ("obstacles",))],
+        ),
     ]
     for r in robots:
         rules += [
@@ -137,6 +150,8 @@ def router_config(
         "service-tokens",
         "service-tokens-get",
         "service-own-token",
+        "service-replicas",
+        "service-replicas-get",
     ]
     operator_rules = [
         "operator-ask",

@@ -34,6 +34,7 @@ on, and work that overruns it is abandoned and answered ``deadline`` with nothin
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import math
 import threading
@@ -53,6 +54,7 @@ from armd.robots import Robot
 from .deadline import Deadline
 from .handlers import Handlers
 from .protocol import VERBS, Limits, decode, encode, request_deadline
+from .replicas import Replicas, changes
 from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
 
@@ -67,6 +69,7 @@ SETTLE = 0.1  # [s] the time a report may move over, beyond the time between rep
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
 DISPUTE_HOLD = 2.0  # [s] an adapter id that two publishers use (or a replay) is not believed this long
 SAY_EVERY = 5.0  # [s] ignored states are logged at most this often, counted between
+ADOPT_S = 5.0  # [s] the most taking another replica's world may take
 REPORT_BYTES = 64 * 1024  # an adapter's state or event, at most (one is under 2 KB): larger is dropped unread
 UNPROVEN_MAX = 64  # early states kept for tokens not seen yet
 
@@ -158,8 +161,22 @@ class Service:
         )
         self._warm_up()
         log.info("warmed up in %.1f s", time.monotonic() - started)
+        # (which replica serves what changes the arms: docs/deployment.md; before the queryable)
+        self._session = session
+        self._queryable: Any = None
+        self._queryable_lock = threading.Lock()
+        self._closing = False
+        self._switching = False
+        self.replicas = Replicas(
+            session,
+            self.prefix,
+            self.id,
+            on_lead=self._lead,
+            adopt=self._adopt_world,
+            runtime=self._runtime_world,
+        )
+        self._lead(self.replicas.leading())
         self._entities: list[Any] = [
-            session.declare_queryable(f"{self.prefix}/**", self._on_query, complete=True),
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
             session.declare_subscriber(f"{self.prefix}/*/events", self._on_event),
             session.declare_subscriber(
@@ -170,6 +187,53 @@ class Service:
             session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
         ]
         log.info("armd service %s serving %s under %s/", self.id, ", ".join(self.arms), self.prefix)
+
+    def _lead(self, leading: bool) -> None:
+        """The queryable declared anew, *complete* while this replica leads (a default query
+        reaches the complete one), not otherwise (it still hears queries asked of all). The
+        new one is declared before the old goes (no moment without one), and while both are
+        there only the complete one serves: a query both hear is served once."""
+        with self._queryable_lock:
+            if self._closing:
+                return
+            self._switching = True
+            try:
+                new = self._session.declare_queryable(
+                    f"{self.prefix}/**", functools.partial(self._on_query_of, leading), complete=leading
+                )
+                old, self._queryable = self._queryable, new
+                if old is not None:
+                    old.undeclare()
+            except Exception:  # the session closing
+                log.debug("queryable not declared anew", exc_info=True)
+            finally:
+                self._switching = False
+
+    def _on_query_of(self, complete: bool, query: zenoh.Query) -> None:
+        if self._switching and not complete:  # (the complete one of this replica hears it too)
+            return
+        self._on_query(query)
+
+    def _adopt_world(self, robot: str, obstacles: list[dict[str, Any]]) -> None:
+        """Another replica's run-time obstacles of ``robot``, taken as this one's."""
+        arm = self.arms.get(robot)
+        if arm is None or arm.collision is None:
+            return
+        try:
+            change = {"clear": True, "add": obstacles} if obstacles else {"clear": True}
+            self.handlers.world(arm, change, Deadline(time.monotonic(), ADOPT_S))
+        except ArmdError as e:
+            log.warning("%s: the world another replica shared is not taken: %s", robot, e.message)
+            return
+        log.info("%s: %d run-time obstacles as another replica has them", robot, len(obstacles))
+
+    def _runtime_world(self) -> dict[str, list[dict[str, Any]]]:
+        """Each arm's run-time obstacles (not robot.toml's), as ``world``'s ``add`` takes them."""
+        out = {}
+        for name, arm in self.arms.items():
+            if arm.collision is not None:
+                out[name] = _runtime(self.handlers.world(arm, {}, Deadline(time.monotonic(), ADOPT_S)))
+        return out
 
     def _warm_up(self) -> None:
         """Compile (or load from Numba's cache) the solver's and the planner's code, and build each
@@ -236,6 +300,9 @@ class Service:
                     # (a reply travels with its query's congestion control: clients ask with BLOCK)
                     query.reply(key_expr, encode(reply), encoding=JSON)
                     outcome = "ok"
+                except _LeftToLeader as e:
+                    log.debug("%s: left to the leading replica (%s)", key, e)
+                    outcome = "lost"  # (no reply: the query ends with the leader's alone)
                 except ArmdError as e:
                     query.reply_err(encode({**e.to_dict(), "service": self.id}), encoding=JSON)
                     outcome = "late" if isinstance(e, DeadlineExceeded) else "error"
@@ -280,8 +347,12 @@ class Service:
         arm, verb = route
         if arm is None:
             return self._finish(self.handlers.robots(req, deadline), deadline)
+        if changes(verb, req) and not self.replicas.leading():
+            raise _LeftToLeader(verb)  # (asked of every replica: the leader executes it, once)
         handler = getattr(self.handlers, verb)
         result: dict[str, Any] = handler(arm, req, deadline)
+        if verb == "world" and changes(verb, req):
+            self.replicas.share(arm.name, _runtime(result))
         if verb in ("move", "stop", "gripper", "pick", "place"):  # published: the reply says so, however late
             return result
         return self._finish(result, deadline)
@@ -539,6 +610,14 @@ class Service:
             }
 
     def close(self) -> None:
+        self.replicas.close()
+        with self._queryable_lock:
+            queryable, self._queryable, self._closing = self._queryable, None, True
+        if queryable is not None:
+            try:
+                queryable.undeclare()
+            except Exception:
+                log.debug("undeclare failed", exc_info=True)
         for entity in self._entities:
             try:
                 entity.undeclare()
@@ -554,6 +633,17 @@ class Service:
         self._commands.shutdown(wait=True, cancel_futures=True)
         self._sequences.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
+
+
+class _LeftToLeader(Exception):
+    """A request that changes an arm, asked of every replica, heard by one that does not lead."""
+
+
+def _runtime(world_reply: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """The run-time obstacles of a ``world`` reply (robot.toml's are fixed), as ``add`` takes them."""
+    world = world_reply.get("world") or {}
+    fixed = set(world_reply.get("fixed", ()))
+    return [o for o in world.get("obstacles", ()) if o["name"] not in fixed]
 
 
 def _quick(key: str, body: bytes, route: Route | None) -> bool:
