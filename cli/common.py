@@ -10,7 +10,7 @@ import threading
 from typing import Any
 
 from armd import robots
-from armd.errors import BadRequest, UnknownRobot
+from armd.errors import BadRequest, RobotFileError, UnknownRobot
 from armd.robots import Robot
 
 from .logs import LOG_FORMAT, LOG_LEVELS, set_up_logging  # noqa: F401 (the commands' one logging set-up)
@@ -18,16 +18,25 @@ from .logs import LOG_FORMAT, LOG_LEVELS, set_up_logging  # noqa: F401 (the comm
 log = logging.getLogger(__name__)
 
 
-def all_robots(robots_dir: str | None) -> dict[str, Robot]:
-    """The catalogue, plus a user's ``--robots-dir`` (which wins on a name)."""
+def all_robots(robots_dir: str | None, refused: dict[str, RobotFileError] | None = None) -> dict[str, Robot]:
+    """The catalogue, plus a user's ``--robots-dir`` (which wins on a name). An arm of the
+    folder that does not load is said once in the log and left out (into ``refused``, where
+    given), and so is the catalogue's arm of its name: the others are served."""
     arms = {name: robots.load(name) for name in robots.names()}
     if robots_dir:
-        arms.update(robots.load_dir(robots_dir))
+        refused = {} if refused is None else refused
+        arms.update(robots.load_dir(robots_dir, refused))
+        for name in refused:  # (not the catalogue's arm of that name in its place: another arm)
+            arms.pop(name, None)
     return arms
 
 
 def robot_named(name: str, robots_dir: str | None) -> Robot:
-    arms = all_robots(robots_dir)
+    """The arm ``name``; a refused arm of ``--robots-dir`` raises its own error."""
+    refused: dict[str, RobotFileError] = {}
+    arms = all_robots(robots_dir, refused)
+    if name in refused:
+        raise refused[name]
     if name not in arms:
         raise UnknownRobot(name, arms)
     return arms[name]

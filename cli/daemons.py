@@ -8,7 +8,7 @@ import sys
 import threading
 from typing import Any
 
-from armd.errors import ArmdError, BadRequest
+from armd.errors import ArmdError, BadRequest, RobotFileError
 from armd.robots import Robot
 
 from .common import (
@@ -40,7 +40,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
     if args.workers < 1:
         raise BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
-    arms = all_robots(args.robots_dir)
+    refused: dict[str, RobotFileError] = {}  # (a bad arm of --robots-dir: said in the log, the others served)
+    arms = all_robots(args.robots_dir, refused)
     world = _sim_objects(args.objects, arms)  # (checked before the network is joined)
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config)
     stop = signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
@@ -59,6 +60,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
             for name, arm in arms.items()
         ]
     extra = f", with simulated arms (x{args.time_scale:g} real time)" if args.sim else ""
+    if refused:
+        extra += f"; refused (see the log): {', '.join(refused)}"
     print(f"armd serving {', '.join(arms)} on {where(conf)} (prefix {args.prefix}){extra}; Ctrl-C to stop", flush=True)
     try:
         wait_for_signal(stop)

@@ -23,6 +23,7 @@ import pinocchio as pin
 
 from armd.errors import RobotFileError, UnknownRobot
 
+from . import checks
 from .actuators import Actuator, ActuatorMap, BusServo, Gripper, Servo, Stepper
 from .chain import recognise, roll_joint
 from .collision import GROUND, CollisionModel, Obstacle
@@ -172,18 +173,30 @@ def load(name: str) -> Robot:
     return _load_catalogue(name)
 
 
-def load_dir(path: str | Path) -> dict[str, Robot]:
-    """Every arm in a user's folder: its sub-folders holding ``robot.toml``, or the folder itself."""
+def load_dir(path: str | Path, refused: dict[str, RobotFileError] | None = None) -> dict[str, Robot]:
+    """Every arm in a user's folder: its sub-folders holding ``robot.toml``, or the folder itself.
+
+    An arm that does not load raises its :class:`RobotFileError`; given ``refused``, it is put
+    there instead (by the arm's name), said once in the log, and the other arms load: one bad
+    arm never takes the others down (``armd serve``, ``armd catalogue``)."""
     root = Path(path)
     if not root.is_dir():
         raise RobotFileError(str(root), None, "is not a folder")
-    if (root / "robot.toml").is_file():
-        robot = load_folder(root)
-        return {robot.name: robot}
-    folders = sorted(p.parent for p in root.glob("*/robot.toml"))
+    single = (root / "robot.toml").exists()  # (the folder is an arm's)
+    folders = [root] if single else sorted(p.parent for p in root.glob("*/robot.toml"))
     if not folders:
         raise RobotFileError(str(root), None, "holds no arm: expected sub-folders with a robot.toml")
-    return {f.name: load_folder(f) for f in folders}
+    arms = {}
+    for folder in folders:
+        try:
+            arms[folder.name] = load_folder(folder)
+        except Exception as e:  # (an error of armd's own, in a bug's case, refuses this arm only)
+            if refused is None:
+                raise
+            error = e if isinstance(e, RobotFileError) else RobotFileError(str(folder), None, f"does not load: {e!r}")
+            refused[folder.name] = error
+            log.error("%s: arm refused: %s", folder.name, error.message)
+    return arms
 
 
 def load_folder(folder: str | Path) -> Robot:
@@ -191,12 +204,12 @@ def load_folder(folder: str | Path) -> Robot:
     folder = Path(folder)
     toml_path = folder / "robot.toml"
     file = str(toml_path)
-    if not toml_path.is_file():
+    if not toml_path.exists():
         raise RobotFileError(file, None, "not found")
+    data = checks.robot_toml(folder)  # (a regular file in the folder, under its cap)
     try:
-        with toml_path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as e:
+        doc = tomllib.loads(data.decode("utf-8"))
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
         raise RobotFileError(file, None, f"is not valid TOML: {e}") from None
     return _Builder(folder, file, doc).build()
 
@@ -226,6 +239,8 @@ class _Builder:
         if len(set(joint_names)) != len(joint_names):
             raise meta.error("joints", "lists a joint twice")
 
+        # the URDF and its meshes, checked before Pinocchio reads them (robots/checks.py)
+        self.checked = checks.urdf(self.folder, urdf_name, self.file, self._meshes_optional(top))
         model = self._load_urdf(urdf_name, meta)
         held = self._check_joints(model, joint_names, meta, urdf_name)
         if held:
@@ -241,6 +256,7 @@ class _Builder:
         limits, tracking = self._limits(
             model, joint_names, index, top.table("joints", {}), top.tables("coupled_limits"), urdf_name
         )
+        checks.check_limits(limits, self.file)
         neutral = np.array(meta.vector("neutral", n, [0.0] * n, angle=True))
         bad = limits.violations(neutral)
         if bad:
@@ -255,7 +271,7 @@ class _Builder:
             found = recognise(model, tool_frame, joint_names, limits, neutral, tool_axis)
             geometry, family_note = found.geometry, found.reason
         roll = roll_joint(model, tool_frame, joint_names, geometry, tool_axis) if geometry is not None else None
-        collision = self._collision(top, model, urdf_name, neutral)
+        collision, collision_off = self._collision(top, model, urdf_name, neutral)
         actuators, gripper = self._actuators(top, index, limits)
         sensors = self._sensors(top, frames, actuators, gripper)
         controller: dict[str, object] = {}
@@ -283,14 +299,21 @@ class _Builder:
             tool_axis=tool_axis,
             roll_joint=roll,
             collision=collision,
+            collision_off=collision_off,
             tracking_tolerance=tracking,
         )
 
+    def _meshes_optional(self, top: _Table) -> bool:
+        """``[collision] meshes_optional``: true serves the arm without collision checks where a
+        mesh cannot be used (default false: such a mesh refuses the arm)."""
+        optional = top.table("collision", {}).raw("meshes_optional", False)
+        if not isinstance(optional, bool):
+            raise top.error("collision", f"meshes_optional must be true or false, got {optional!r}")
+        return optional
+
     def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:
         urdf_path = self.folder / urdf_name
-        if not urdf_path.is_file():
-            raise meta.error("urdf", f"{urdf_path} not found")
-        text = urdf_path.read_text()
+        text = self.checked.text  # (read and checked once: robots/checks.py)
         try:
             text = _continuous_as_revolute(text, self.folder.name)
             if held:
@@ -301,10 +324,14 @@ class _Builder:
         except Exception as e:  # Pinocchio raises ValueError/RuntimeError from C++; ElementTree ParseError
             raise RobotFileError(str(urdf_path), None, f"Pinocchio cannot load it: {e}") from None
 
-    def _collision(self, top: _Table, model: pin.Model, urdf_name: str, neutral: FloatArray) -> CollisionModel | None:
+    def _collision(
+        self, top: _Table, model: pin.Model, urdf_name: str, neutral: FloatArray
+    ) -> tuple[CollisionModel | None, str | None]:
         """The URDF's collision shapes, ``[world] ground`` (the floor's height [m] in the base
         frame, default 0; ``false``: none) and ``[collision] allowed`` (pairs of link names
-        never checked); a neutral pose in collision is logged."""
+        never checked); a neutral pose in collision is logged. A mesh that cannot be used
+        refuses the arm, but with ``[collision] meshes_optional = true``: then no collision
+        model, and why (said once in the log, and in ``info``)."""
         world = top.table("world", {})
         raw = world.raw("ground", 0.0)
         ground = None if raw is False else world.number("ground", 0.0)
@@ -321,17 +348,38 @@ class _Builder:
             for link in pair:
                 if link not in links and link != GROUND:
                     raise col.error("allowed", f"{urdf_name} has no link {link!r}; links: {', '.join(sorted(links))}")
+        optional = self._meshes_optional(top)
+        col.raw("meshes_optional", False)
         col.finish()
-        try:  # (meshes: relative to the arm's folder, as package:// paths are)
-            model_ = CollisionModel(
-                model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles, [str(self.folder)]
-            )
-        except Exception as e:  # Pinocchio's and coal's own errors (a mesh it cannot read, say)
-            # said, not refused: such arms loaded before collisions were read, and nothing checks them yet
+        off = self.checked.collision_off
+        if self.checked.unusable:  # (only with meshes_optional: else the first refused the arm)
             log.warning(
-                "%s: %s's collision shapes cannot be loaded, none are checked: %s", self.folder.name, urdf_name, e
+                "%s: %d mesh(es) cannot be used ([collision] meshes_optional = true)%s: %s",
+                self.folder.name,
+                len(self.checked.unusable),
+                ": served without collision checks" if off is not None else "",
+                "; ".join(self.checked.unusable),
             )
-            return None
+        if off is None:
+            try:  # (meshes: checked inside the arm's folder, named by their paths: robots/checks.py)
+                model_ = CollisionModel(
+                    model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles, [str(self.folder)]
+                )
+            except Exception as e:  # Pinocchio's and coal's own errors (a mesh assimp cannot read, say)
+                problem = f"its collision shapes cannot be loaded: {e}"
+                if not optional:
+                    raise RobotFileError(
+                        str(self.folder / urdf_name),
+                        None,
+                        f"{problem} (to serve the arm without collision checks, set [collision] "
+                        "meshes_optional = true in robot.toml)",
+                    ) from None
+                off = f"{self.folder / urdf_name}: {problem}"
+                log.warning(
+                    "%s: served without collision checks ([collision] meshes_optional): %s", self.folder.name, off
+                )
+        if off is not None:
+            return None, off
         hit = model_.first_contact(neutral)
         if hit is not None:  # (said, not refused: IK and plans do not check collisions yet)
             log.warning(
@@ -340,7 +388,7 @@ class _Builder:
                 self.folder.name,
                 hit,
             )
-        return model_
+        return model_, None
 
     def _obstacles(self, world: _Table, links: set[str]) -> list[Obstacle]:
         """``[[world.boxes]]`` (``size`` [x, y, z] m), ``[[world.spheres]]`` (``radius``),

@@ -57,6 +57,9 @@ class Robot:
         sensors: range sensors by name.
         neutral: the rest configuration [rad].
         model: the Pinocchio model built from ``robot.urdf`` (mimic joints resolved).
+        collision: the arm's collision shapes and world, or None: not checked, because
+            ``collision_off`` (robot.toml's ``[collision] meshes_optional = true`` and a mesh
+            that cannot be used).
     """
 
     def __init__(
@@ -80,6 +83,7 @@ class Robot:
         tool_axis: FloatArray | None = None,
         roll_joint: RollJoint | None = None,
         collision: CollisionModel | None = None,
+        collision_off: str | None = None,
         tracking_tolerance: FloatArray | None = None,
     ) -> None:
         self.name = name
@@ -100,6 +104,8 @@ class Robot:
         self.family_note = family_note
         self.roll_joint = roll_joint
         self.collision = collision
+        # why collisions are not checked (robot.toml's [collision] meshes_optional, a mesh that cannot be used)
+        self.collision_off = collision_off
         # [rad] per joint: the most a measured position may trail the plan (execution monitoring)
         self.tracking_tolerance = (
             np.full(len(joint_names), 0.15) if tracking_tolerance is None else np.asarray(tracking_tolerance, float)
@@ -376,4 +382,5 @@ class Robot:
             "wrist": self.chooses_pitch,
             "tool_pitch": "level" if self.geometry and self.geometry.level else "joints",
             "world": self.collision.describe() if self.collision is not None else None,
+            "collision": {"checked": self.collision is not None, "off": self.collision_off},
         }

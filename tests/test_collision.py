@@ -311,16 +311,17 @@ def test_obstacles_in_robot_toml(arm_copy: Callable[..., Path]) -> None:
             robots.load_folder(arm_copy("insomniac", [(ground, ground + edit)], as_name=f"b{len(says)}"))
 
 
-def test_an_arm_whose_collision_mesh_cannot_be_read_still_loads(
+def test_an_arm_whose_collision_mesh_cannot_be_read_loads_only_where_robot_toml_says_so(
     arm_copy: Callable[..., Path], caplog: pytest.LogCaptureFixture
 ) -> None:
-    """Collision shapes are not checked by IK or plans yet: an unreadable mesh is said, and the
-    arm is served without them (as before collisions were read)."""
+    """An unreadable mesh refuses the arm (tests/test_user_arms.py); with ``[collision]
+    meshes_optional = true`` it is said, and the arm is served without collision checks."""
     box = '<collision><origin xyz="0.05 0 0"/><geometry><box size="0.1 0.05 0.02"/></geometry></collision>'
     mesh = '<collision><geometry><mesh filename="meshes/nosuch.stl"/></geometry></collision>'
+    optional = ("[world]\n", "[collision]\nmeshes_optional = true\n\n[world]\n")
     with caplog.at_level(logging.WARNING, logger="armd.robots.catalogue"):
-        arm = robots.load_folder(arm_copy("insomniac", urdf_edits=[(box, mesh)], as_name="m"))
-    assert arm.collision is None and any("cannot be loaded" in r.getMessage() for r in caplog.records)
+        arm = robots.load_folder(arm_copy("insomniac", [optional], urdf_edits=[(box, mesh)], as_name="m"))
+    assert arm.collision is None and any("served without collision checks" in r.getMessage() for r in caplog.records)
     assert solvers.solve_ik(arm, arm.fk(arm.neutral)).status == "ok"
 
 
