@@ -40,6 +40,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     )
     if args.workers < 1:
         raise BadRequest(f"--workers must be >= 1, got {args.workers}", field="workers")
+    from armd.service.server import SWITCH_INTERVAL
+
+    # (the GIL handed over every 0.5 ms, not 5: a stop's thread waits that long behind each
+    # request that computes, at every step of its path)
+    sys.setswitchinterval(SWITCH_INTERVAL)
     refused: dict[str, RobotFileError] = {}  # (a bad arm of --robots-dir: said in the log, the others served)
     arms = all_robots(args.robots_dir, refused)
     world = _sim_objects(args.objects, arms)  # (checked before the network is joined)

@@ -219,22 +219,29 @@ class Handlers:
         """Never refused: not for lateness, not for a state outside the limits. The stop goes
         out on ``estop`` first, and every adapter brakes from its own state; the reply's
         duration and rest pose are the service's estimate from what it knows of the arm."""
-        check(NOTHING, req)
         ident = uuid.uuid4().hex
         self.publish_estop(arm, {"id": ident, "by": "service"})  # (first: before anything that could wait)
         self.note_stop(arm.name)
+        try:  # (read after: a request a stop cannot read still stops the arm, and says so)
+            check(NOTHING, req)
+            warning = None
+        except BadRequest as e:
+            warning = f"the request was not read ({e.message}): the arm was stopped all the same"
         known = self.book.current(arm)
         try:
             traj = planning.plan_stop(arm, known.state, clamp=True)
         except ArmdError:  # (an estimate only: the adapters brake from their own states)
             traj = planning.plan_stop(arm, JointState.at_rest(arm.limits.clip(known.state.position)), clamp=True)
         self.book.commanded(arm.name, traj)
-        return {
+        out = {
             "id": ident,
             "duration": traj.duration,
             "adapters": self.adapters(arm),
             "rest": traj.position[-1].tolist(),
         }
+        if warning is not None:
+            out["warning"] = warning
+        return out
 
     def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between: published to the adapters."""

@@ -564,6 +564,9 @@ DETECT = Obj(
 SHAPES = ("box", "sphere", "cylinder")
 MIN_SIZE = 0.0005  # [m] an obstacle's smallest dimension
 MAX_OBSTACLES = 64  # obstacles added at run time, per arm
+# [bytes] a world request, at most, refused by its size before it is parsed: 64 obstacles are
+# under 20 KB, and one of thousands would hold the interpreter (and so every stop) while it is parsed
+WORLD_BYTES = 64 * 1024
 OBSTACLE = Obj(
     {
         "name": Word(),

@@ -48,12 +48,21 @@ import numpy as np
 import orjson
 import zenoh
 
-from armd.errors import ArmdError, DeadlineExceeded, Internal, NoAdapter, Rejected, UnknownRobot, UnknownVerb
+from armd.errors import (
+    ArmdError,
+    DeadlineExceeded,
+    Internal,
+    NoAdapter,
+    PayloadTooLarge,
+    Rejected,
+    UnknownRobot,
+    UnknownVerb,
+)
 from armd.robots import Robot
 
 from .deadline import Deadline
 from .handlers import Handlers
-from .protocol import VERBS, Limits, decode, encode, request_deadline
+from .protocol import VERBS, WORLD_BYTES, Limits, decode, encode, request_deadline
 from .replicas import Replicas, changes
 from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
@@ -69,6 +78,7 @@ SETTLE = 0.1  # [s] the time a report may move over, beyond the time between rep
 RESET_AFTER = 0.5  # [s] an adapter whose every report was discontinuous this long starts afresh
 DISPUTE_HOLD = 2.0  # [s] an adapter id that two publishers use (or a replay) is not believed this long
 SAY_EVERY = 5.0  # [s] ignored states are logged at most this often, counted between
+SWITCH_INTERVAL = 0.0005  # [s] how often `armd serve` hands Python's GIL over (sys.setswitchinterval; default 5 ms)
 ADOPT_S = 5.0  # [s] the most taking another replica's world may take
 REPORT_BYTES = 64 * 1024  # an adapter's state or event, at most (one is under 2 KB): larger is dropped unread
 UNPROVEN_MAX = 64  # early states kept for tokens not seen yet
@@ -336,7 +346,15 @@ class Service:
             urgent = route[1] == "stop"
         if not urgent:  # a stop is never refused for lateness
             deadline.check("queued")
-        req = decode(payload, self.handlers.limits)
+        unread = None
+        if route is not None and route[1] == "world" and len(payload) > WORLD_BYTES:
+            raise PayloadTooLarge(len(payload), WORLD_BYTES)  # (before it is parsed)
+        try:
+            req = decode(payload, self.handlers.limits)
+        except ArmdError as e:
+            if not (urgent and route is not None):
+                raise
+            req, unread = {}, e.message  # (a stop is never refused: the arm stops, the reply says why it was not read)
         asked = request_deadline(req)
         if asked is not None:
             deadline.shorten(asked)
@@ -351,6 +369,8 @@ class Service:
             raise _LeftToLeader(verb)  # (asked of every replica: the leader executes it, once)
         handler = getattr(self.handlers, verb)
         result: dict[str, Any] = handler(arm, req, deadline)
+        if unread is not None:
+            result["warning"] = f"the request was not read ({unread}): the arm was stopped all the same"
         if verb == "world" and changes(verb, req):
             self.replicas.share(arm.name, _runtime(result))
         if verb in ("move", "stop", "gripper", "pick", "place"):  # published: the reply says so, however late
@@ -657,10 +677,14 @@ def _quick(key: str, body: bytes, route: Route | None) -> bool:
 
 
 def _attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:
-    """``fn(*args, **kwargs)``, or None where it refuses (a warm-up path an arm does not take)."""
+    """``fn(*args, **kwargs)``, or None where it refuses (a warm-up path an arm does not take),
+    or fails (a bug on one arm's path: logged with its traceback; the other arms are served)."""
     try:
         return fn(*args, **kwargs)
     except ArmdError:
+        return None
+    except Exception:
+        log.exception("warming up %s failed (the arm is served; requests on this path may fail)", fn.__name__)
         return None
 
 

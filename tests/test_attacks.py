@@ -28,13 +28,17 @@ def _obstacles(n: int) -> list[dict[str, Any]]:
 
 def test_a_world_request_of_thousands_of_obstacles_is_refused_before_any_is_built(client: ArmClient) -> None:
     """10,000 obstacles (the red team's: 25.5 s under the world's lock, then refused) are
-    refused by their count, before any is looked at; a cap's worth is taken."""
+    refused by the request's size, before it is parsed; 65 by their count, before any is looked
+    at; a cap's worth is taken."""
     started = time.monotonic()
     with pytest.raises(ServiceError) as e:
         client.world("gupta3", add=_obstacles(10_000))
+    assert e.value.code == "too_large" and e.value.limit == 64 * 1024, e.value.message  # type: ignore[attr-defined]
+    with pytest.raises(ServiceError) as e:
+        client.world("gupta3", add=_obstacles(65))
     assert e.value.code == "bad_request" and e.value.field == "add" and "at most 64" in e.value.message
     with pytest.raises(ServiceError) as e:
-        client.world("gupta3", remove=[f"o{i}" for i in range(10_000)])
+        client.world("gupta3", remove=[f"o{i}" for i in range(65)])
     assert e.value.code == "bad_request" and e.value.field == "remove"
     assert time.monotonic() - started < 5.0  # (the old code: 25 s; a bound, not a benchmark)
     try:
@@ -152,3 +156,31 @@ def test_an_oversized_state_is_dropped_unread(client: ArmClient, service: Any) -
     msg = {"adapter": "x", "seq": 1, "epoch": 0, "position": [0.0, 0.0, 0.0], "pad": "p" * 1_000_000}
     client.session.put("armd/gupta3/state", orjson.dumps(msg))
     wait_for(lambda: service._ignored.get("too large", 0) >= 1, timeout=5, what="the state dropped by its size")
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [b'{"reason": "the red button"}', b"[" * DEEP, b"not json", b'{"pad": "' + b"x" * 1_100_000 + b'"}'],
+    ids=["a field stop does not take", "nested", "not JSON", "over the payload cap"],
+)
+def test_a_stop_whose_request_cannot_be_read_still_stops_the_arm(
+    client: ArmClient, adapter_session: zenoh.Session, payload: bytes
+) -> None:
+    """A stop is never refused, not for its request either: the estop goes out, the arm brakes,
+    and the reply says why the request was not read. (Before: ``bad_request`` or ``too_large``,
+    and the arm went on.)"""
+    arm = robots.load("insomniac")
+    sim = SimAdapter(adapter_session, arm)
+    try:
+        wait_for(lambda: client.state("insomniac")["source"] == "adapter", what="the adapter's state")
+        events, sub = collect(client, "armd/insomniac/events")
+        client.move("insomniac", [1.2, 2.0, -1.8, 1.0, 1.0])
+        time.sleep(0.3)
+        (reply,) = list(client.session.get("armd/insomniac/stop", payload=payload, timeout=10.0))
+        assert reply.ok is not None, reply.err.payload.to_bytes()  # type: ignore[union-attr]
+        body = orjson.loads(reply.ok.payload.to_bytes())
+        assert "was not read" in body["warning"] and "stopped all the same" in body["warning"], body
+        wait_for(lambda: any(e["event"] == "accepted" and e.get("trajectory") == "stop" for e in events), timeout=5)
+        sub.undeclare()  # type: ignore[attr-defined]
+    finally:
+        sim.close()
