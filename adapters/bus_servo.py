@@ -244,7 +244,10 @@ class SdkBus(Bus):
         kept for :meth:`learn_latency`)."""
         self._fresh()
         asked = time.monotonic()
-        model, result, _ = self.packets.ping(self.handler, ident)
+        try:
+            model, result, _ = self.packets.ping(self.handler, ident)
+        except IndexError:  # (Feetech's SDK indexes a model number its garbled reply lacks: no answer)
+            return None
         if not self._ok(result):
             return None
         wire = self.handler.tx_time_per_byte * self.ping_bytes / 1000.0

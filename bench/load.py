@@ -106,7 +106,8 @@ class Mix:
                 if arm.limits.contains(q):
                     qs.append(q)
             self.arms[name] = (np.array(qs), np.array([arm.fk(q) for q in qs]))
-        self.bad = [(k, p) for k, p in bad_requests(2000, seed=seed, oversized=0)]
+        # (not a stop's: a stop is never refused, it stops the arm whatever its request says)
+        self.bad = [(k, p) for k, p in bad_requests(2000, seed=seed, oversized=0) if not k.endswith("/stop")]
         d = nrng.normal(size=(20, 3))
         self.far = (1.0 * d / np.linalg.norm(d, axis=1)[:, None]).tolist()  # beyond every arm's reach
 

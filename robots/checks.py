@@ -34,7 +34,7 @@ from pathlib import Path, PurePosixPath
 from typing import NamedTuple
 from xml.parsers import expat
 
-from armd.errors import RobotFileError
+from armd.errors import FileProblem, RobotFileError
 
 from .limits import JointLimits
 
@@ -71,41 +71,30 @@ class CheckedUrdf(NamedTuple):
     collision_off: str | None
 
 
-class _Problem(Exception):
-    """What is wrong with one file an arm names. ``forbidden``: outside the folder or not a regular
-    file, never opened whatever robot.toml says; else it cannot be used (missing, too large, not a
-    mesh armd reads)."""
-
-    def __init__(self, problem: str, forbidden: bool) -> None:
-        super().__init__(problem)
-        self.problem = problem
-        self.forbidden = forbidden
-
-
 # -- files --------------------------------------------------------------------------------------
 
 
 def _inside(folder: Path, name: str) -> Path:
     """The file ``name`` (a path relative to the arm's folder, ``package://`` (the folder is the
-    package's root) or ``file://``) as a real path inside ``folder``; raises :class:`_Problem`
+    package's root) or ``file://``) as a real path inside ``folder``; raises :class:`FileProblem`
     (forbidden) for another scheme, a ``..``, or a path or link that leaves the folder."""
     text = name.strip()
     if not text:
-        raise _Problem("names no file", forbidden=False)
+        raise FileProblem("names no file", forbidden=False)
     for scheme in ("package://", "file://"):
         if text.startswith(scheme):
             text = text[len(scheme) :]
             break
     else:
         if "://" in text:
-            raise _Problem("must be a path in the arm's folder (package://, file:// or relative)", forbidden=True)
+            raise FileProblem("must be a path in the arm's folder (package://, file:// or relative)", forbidden=True)
     path = PurePosixPath(text)
     if ".." in path.parts:
-        raise _Problem("must not go up a folder ('..'): an arm's files are in its own folder", forbidden=True)
+        raise FileProblem("must not go up a folder ('..'): an arm's files are in its own folder", forbidden=True)
     root = folder.resolve()
     real = (root / path).resolve()  # (an absolute path replaces root; links resolved)
     if real != root and root not in real.parents:
-        raise _Problem(f"is outside the arm's folder {root} (as {real})", forbidden=True)
+        raise FileProblem(f"is outside the arm's folder {root} (as {real})", forbidden=True)
     return real
 
 
@@ -114,15 +103,15 @@ def _open(real: Path, cap: int, what: str) -> int:
     try:
         fd = os.open(real, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_NOFOLLOW", 0))
     except FileNotFoundError:
-        raise _Problem(f"{real} not found", forbidden=False) from None
+        raise FileProblem(f"{real} not found", forbidden=False) from None
     except OSError as e:
-        raise _Problem(f"{real} cannot be opened: {e.strerror}", forbidden=False) from None
+        raise FileProblem(f"{real} cannot be opened: {e.strerror}", forbidden=False) from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
-            raise _Problem(f"{real} is not a regular file (a device, a pipe or a folder)", forbidden=True)
+            raise FileProblem(f"{real} is not a regular file (a device, a pipe or a folder)", forbidden=True)
         if st.st_size > cap:
-            raise _Problem(f"{real} is {st.st_size:,} bytes: {what} may be at most {cap:,}", forbidden=False)
+            raise FileProblem(f"{real} is {st.st_size:,} bytes: {what} may be at most {cap:,}", forbidden=False)
     except BaseException:
         os.close(fd)
         raise
@@ -152,8 +141,8 @@ def _read_file(folder: Path, name: str, cap: int, what: str, file: str, field: s
         finally:
             os.close(fd)
         if len(data) > cap:  # (it grew since it was measured)
-            raise _Problem(f"{real} is over {cap:,} bytes: {what} may be at most {cap:,}", forbidden=False)
-    except _Problem as p:
+            raise FileProblem(f"{real} is over {cap:,} bytes: {what} may be at most {cap:,}", forbidden=False)
+    except FileProblem as p:
         raise RobotFileError(file, field, f"{name!r}: {p.problem}") from None
     return real, data
 
@@ -372,7 +361,7 @@ def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[
     unusable: list[str] = []
     collision_off: str | None = None
     seen: dict[Path, int] = {}  # a usable mesh: its size [bytes]
-    bad: dict[Path, _Problem] = {}  # a mesh that cannot be used: why (said once)
+    bad: dict[Path, FileProblem] = {}  # a mesh that cannot be used: why (said once)
     rewritten = False
     for link in root.findall("link"):
         for kind in ("collision", "visual"):
@@ -388,10 +377,10 @@ def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[
                         if real not in seen:
                             seen[real] = _mesh(real)
                             if sum(seen.values()) > MAX_MESHES_BYTES:
-                                raise _Problem(
+                                raise FileProblem(
                                     f"the arm's meshes together are over {MAX_MESHES_BYTES:,} bytes", forbidden=False
                                 )
-                    except _Problem as p:
+                    except FileProblem as p:
                         if p.forbidden or not optional:
                             hint = (
                                 ""
@@ -416,12 +405,12 @@ def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[
 def _mesh(real: Path) -> int:
     """The size [bytes] of the mesh file ``real``, once it is known to be usable."""
     if real.suffix.lower() not in MESH_FORMATS:
-        raise _Problem(f"is not a mesh format armd reads ({', '.join(MESH_FORMATS)})", forbidden=False)
+        raise FileProblem(f"is not a mesh format armd reads ({', '.join(MESH_FORMATS)})", forbidden=False)
     fd = _open(real, MAX_MESH_BYTES, "a mesh")
     try:
         size = os.fstat(fd).st_size
         if size == 0:
-            raise _Problem(f"{real} is empty", forbidden=False)
+            raise FileProblem(f"{real} is empty", forbidden=False)
         if real.suffix.lower() == ".stl":
             _stl(fd, size, real)
     finally:
@@ -436,17 +425,19 @@ def _stl(fd: int, size: int, real: Path) -> None:
     count = int.from_bytes(head[80:84], "little") if len(head) == _STL_HEADER else -1
     if count >= 0 and _STL_HEADER + _STL_TRIANGLE * count == size:
         if count > MAX_TRIANGLES:
-            raise _Problem(
+            raise FileProblem(
                 f"{real} has {count:,} triangles: a mesh may have at most {MAX_TRIANGLES:,}", forbidden=False
             )
         return
     if head.lstrip().startswith(b"solid"):
         facets = (head + _read(fd, MAX_MESH_BYTES)).count(b"facet normal")
         if facets > MAX_TRIANGLES:
-            raise _Problem(f"{real} has {facets:,} facets: a mesh may have at most {MAX_TRIANGLES:,}", forbidden=False)
+            raise FileProblem(
+                f"{real} has {facets:,} facets: a mesh may have at most {MAX_TRIANGLES:,}", forbidden=False
+            )
         return
     claimed = f"claims {count:,} triangles ({_STL_HEADER + _STL_TRIANGLE * count:,} bytes)" if count >= 0 else "is"
-    raise _Problem(f"{real} is not an STL: its header {claimed}, the file has {size:,} bytes", forbidden=False)
+    raise FileProblem(f"{real} is not an STL: its header {claimed}, the file has {size:,} bytes", forbidden=False)
 
 
 # -- the limits ---------------------------------------------------------------------------------

@@ -224,9 +224,9 @@ class Handlers:
         self.note_stop(arm.name)
         try:  # (read after: a request a stop cannot read still stops the arm, and says so)
             check(NOTHING, req)
-            warning = None
+            unread = None
         except BadRequest as e:
-            warning = f"the request was not read ({e.message}): the arm was stopped all the same"
+            unread = e
         known = self.book.current(arm)
         try:
             traj = planning.plan_stop(arm, known.state, clamp=True)
@@ -239,9 +239,7 @@ class Handlers:
             "adapters": self.adapters(arm),
             "rest": traj.position[-1].tolist(),
         }
-        if warning is not None:
-            out["warning"] = warning
-        return out
+        return out | unread_request(unread) if unread is not None else out
 
     def gripper(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between: published to the adapters."""
@@ -555,3 +553,12 @@ class _SequenceAsked:
     above: float
     lift: float
     speed: float
+
+
+def unread_request(error: ArmdError) -> dict[str, Any]:
+    """What a stop's reply says of a request it could not read (the arm was stopped all the
+    same): ``warning``, and ``unread``, the error the request would have had."""
+    return {
+        "warning": f"the request was not read ({error.message}): the arm was stopped all the same",
+        "unread": error.to_dict(),
+    }

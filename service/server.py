@@ -61,7 +61,7 @@ from armd.errors import (
 from armd.robots import Robot
 
 from .deadline import Deadline
-from .handlers import Handlers
+from .handlers import Handlers, unread_request
 from .protocol import VERBS, WORLD_BYTES, Limits, decode, encode, request_deadline
 from .replicas import Replicas, changes
 from .sensor_book import SensorBook
@@ -306,13 +306,14 @@ class Service:
             with query:  # finalises the query when done: one reply, then the end
                 try:
                     reply = self._dispatch(key, body, Deadline(arrived, self.handlers.limits.deadline), route)
-                    reply["service"] = self.id  # (which replica answered: for the operator, and the logs)
-                    # (a reply travels with its query's congestion control: clients ask with BLOCK)
-                    query.reply(key_expr, encode(reply), encoding=JSON)
-                    outcome = "ok"
-                except _LeftToLeader as e:
-                    log.debug("%s: left to the leading replica (%s)", key, e)
-                    outcome = "lost"  # (no reply: the query ends with the leader's alone)
+                    if reply is None:  # (asked of every replica, it changes an arm: the leader's alone)
+                        log.debug("%s: left to the leading replica", key)
+                        outcome = "lost"  # (no reply: the query ends with the leader's alone)
+                    else:
+                        reply["service"] = self.id  # (which replica answered: for the operator, and the logs)
+                        # (a reply travels with its query's congestion control: clients ask with BLOCK)
+                        query.reply(key_expr, encode(reply), encoding=JSON)
+                        outcome = "ok"
                 except ArmdError as e:
                     query.reply_err(encode({**e.to_dict(), "service": self.id}), encoding=JSON)
                     outcome = "late" if isinstance(e, DeadlineExceeded) else "error"
@@ -336,7 +337,11 @@ class Service:
         if log.isEnabledFor(logging.DEBUG):  # (the level is looked up per request: it may be changed live)
             log.debug("%s %s in %.2f ms", key, outcome, (time.monotonic() - arrived) * 1e3)
 
-    def _dispatch(self, key: str, payload: bytes, deadline: Deadline, route: Route | None = None) -> dict[str, Any]:
+    def _dispatch(
+        self, key: str, payload: bytes, deadline: Deadline, route: Route | None = None
+    ) -> dict[str, Any] | None:
+        """The reply to a request, or None: no reply (one that changes an arm, heard by a
+        replica that does not lead: :mod:`.replicas`)."""
         if route is None:  # not a key of ours as it stands: parsed here, and refused once the payload is read
             rest = key[len(self.prefix) + 1 :] if key.startswith(self.prefix + "/") else key
             parts = rest.split("/")
@@ -346,7 +351,7 @@ class Service:
             urgent = route[1] == "stop"
         if not urgent:  # a stop is never refused for lateness
             deadline.check("queued")
-        unread = None
+        unread: ArmdError | None = None
         if route is not None and route[1] == "world" and len(payload) > WORLD_BYTES:
             raise PayloadTooLarge(len(payload), WORLD_BYTES)  # (before it is parsed)
         try:
@@ -354,7 +359,7 @@ class Service:
         except ArmdError as e:
             if not (urgent and route is not None):
                 raise
-            req, unread = {}, e.message  # (a stop is never refused: the arm stops, the reply says why it was not read)
+            req, unread = {}, e  # (a stop is never refused: the arm stops, the reply says why it was not read)
         asked = request_deadline(req)
         if asked is not None:
             deadline.shorten(asked)
@@ -366,11 +371,11 @@ class Service:
         if arm is None:
             return self._finish(self.handlers.robots(req, deadline), deadline)
         if changes(verb, req) and not self.replicas.leading():
-            raise _LeftToLeader(verb)  # (asked of every replica: the leader executes it, once)
+            return None  # (asked of every replica: the leader executes it, once)
         handler = getattr(self.handlers, verb)
         result: dict[str, Any] = handler(arm, req, deadline)
         if unread is not None:
-            result["warning"] = f"the request was not read ({unread}): the arm was stopped all the same"
+            result |= unread_request(unread)
         if verb == "world" and changes(verb, req):
             self.replicas.share(arm.name, _runtime(result))
         if verb in ("move", "stop", "gripper", "pick", "place"):  # published: the reply says so, however late
@@ -653,10 +658,6 @@ class Service:
         self._commands.shutdown(wait=True, cancel_futures=True)
         self._sequences.shutdown(wait=True, cancel_futures=True)
         log.info("armd service %s closed: %s", self.id, self.stats())
-
-
-class _LeftToLeader(Exception):
-    """A request that changes an arm, asked of every replica, heard by one that does not lead."""
 
 
 def _runtime(world_reply: Mapping[str, Any]) -> list[dict[str, Any]]:

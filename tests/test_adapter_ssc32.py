@@ -193,7 +193,7 @@ def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(
 
 
 def test_desk4_linkage_moves_in_one_timed_command(
-    client: ArmClient, service: object, adapter_session: zenoh.Session
+    router: str, client: ArmClient, service: object, tmp_path: Path
 ) -> None:
     """desk4's third servo moves two joints (through its four-bar: its angle a nonlinear function
     of theirs): the two servos of that linkage go in one command timed by T (their speeds are in
@@ -201,12 +201,12 @@ def test_desk4_linkage_moves_in_one_timed_command(
     joint, read back from the board's pulses through the linkage's inverse, within its limits at
     every moment, and at each goal (two moves across most of the minor arm's range)."""
     arm = robots.load("desk4")
-    # (the board in a process of its own, as for every limit measured here: one in this busy
-    # interpreter stamps a line when it gets to run, milliseconds late, and the speeds look changed)
+    # (the board and the adapter in processes of their own, as for every limit measured here: in
+    # this busy interpreter a line is written, and stamped, when it gets to run, milliseconds late)
     with EmulatorProcess(SSC32Emulator) as emu:
-        adapter = SSC32Adapter(adapter_session, arm, emu.port)
+        adapter = adapter_process(emu.port, router, tmp_path, robot="desk4")
         try:
-            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            wait_for(lambda: service._adapter_count(arm) == 1, timeout=30, what="the adapter's token")  # type: ignore[attr-defined]
             since = emu.clock()
             for goal in ([0.8, 0.5, -0.3], [-0.5, 1.8, -2.4]):
                 client.move("desk4", goal, wait=True, wait_timeout=15)
@@ -231,7 +231,8 @@ def test_desk4_linkage_moves_in_one_timed_command(
                 change / arm.limits.acceleration
             )
         finally:
-            adapter.close()
+            adapter.terminate()
+            adapter.wait(10)
 
 
 def test_an_adapter_refuses_an_arm_it_cannot_drive(adapter_session: zenoh.Session) -> None:
@@ -290,7 +291,9 @@ def commanded(adapter: SSC32Adapter) -> Motion:
     return Motion(np.array(times), np.array([adapter._was_at(t) for t in times]), 0)
 
 
-def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subprocess.Popen[str]:
+def adapter_process(
+    port: str, router: str, tmp_path: Path, *extra: str, robot: str = "insomniac"
+) -> subprocess.Popen[str]:
     """``armd adapter ssc32 insomniac`` as a user runs it: a process of its own, its log in
     ``tmp_path`` (a pipe nobody reads would stall it once full), its kept pose there too."""
     env = {**os.environ, "ARMD_STATE_DIR": str(tmp_path)}
@@ -301,7 +304,7 @@ def adapter_process(port: str, router: str, tmp_path: Path, *extra: str) -> subp
             "armd.cli",
             "adapter",
             "ssc32",
-            "insomniac",
+            robot,
             "--port",
             port,
             "--connect",

@@ -140,6 +140,18 @@ class UnknownVerb(ArmdError, LookupError):
 # -- robots and their limits --------------------------------------------------------------------
 
 
+class FileProblem(Exception):
+    """(Within robots.checks, before it becomes a :class:`RobotFileError` naming the arm's file.)
+    What is wrong with one file an arm names. ``forbidden``: outside the arm's folder or not a
+    regular file, never opened whatever robot.toml says; else it cannot be used (missing, too
+    large, not a mesh armd reads)."""
+
+    def __init__(self, problem: str, forbidden: bool) -> None:
+        super().__init__(problem)
+        self.problem = problem
+        self.forbidden = forbidden
+
+
 class RobotFileError(ArmdError):
     """A robot folder is malformed or inconsistent: names the file, the field and the problem."""
 
