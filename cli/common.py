@@ -4,6 +4,7 @@ line, the network options, signals, Zenoh sessions, and the one logging set-up."
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 import threading
@@ -182,3 +183,19 @@ def where(conf: Any) -> str:
     from armd.service.zconfig import endpoints
 
     return ", ".join(endpoints(conf, "connect") or endpoints(conf, "listen")) or "no endpoint"
+
+
+def raise_open_files() -> None:
+    """A router's open-file limit raised to hold ``MAX_SESSIONS`` sessions (a socket each) where
+    the system's hard limit allows: a soft limit of 1,024 (many systems') would cap them first."""
+    import resource
+
+    from armd.service.zconfig import MAX_SESSIONS
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    want = MAX_SESSIONS + 1024  # (and the process's own files)
+    if hard != resource.RLIM_INFINITY:
+        want = min(want, hard)
+    if soft != resource.RLIM_INFINITY and soft < want:
+        with contextlib.suppress(ValueError, OSError):  # (not allowed here: the system's limit stands)
+            resource.setrlimit(resource.RLIMIT_NOFILE, (want, hard))

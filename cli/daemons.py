@@ -18,6 +18,7 @@ from .common import (
     network_args,
     open_bus,
     open_session,
+    raise_open_files,
     robot_named,
     signals,
     wait_for_signal,
@@ -45,6 +46,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     # (the GIL handed over every 0.5 ms, not 5: a stop's thread waits that long behind each
     # request that computes, at every step of its path)
     sys.setswitchinterval(SWITCH_INTERVAL)
+    raise_open_files()
     refused: dict[str, RobotFileError] = {}  # (a bad arm of --robots-dir: said in the log, the others served)
     arms = all_robots(args.robots_dir, refused)
     world = _sim_objects(args.objects, arms)  # (checked before the network is joined)
@@ -236,6 +238,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     from armd.service.zconfig import endpoints, network_config
 
     conf = network_config(listen=args.listen, connect=args.connect, config_file=args.config, mode="router")
+    raise_open_files()
     stop = signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
     session = open_session(conf)
     listening = ", ".join(endpoints(conf, "listen")) or "no endpoint"

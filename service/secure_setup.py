@@ -34,6 +34,7 @@ SIZE_LIMITS = {
     "trajectory": 8 * 1024 * 1024,  # adapters/trajectory_message.py MAX_BYTES
 }
 MAX_MESSAGE = 16 * 1024 * 1024  # [bytes] the most the router puts together of one message (zconfig)
+MAX_SESSIONS = 10_000  # sessions the router holds (zconfig)
 TLS_ROUTER = '// tls: { listen_certificate: "router.pem", listen_private_key: "router.key" },'
 TLS_CLIENT = '// link: { tls: { root_ca_certificate: "ca.pem" } },'
 
@@ -193,6 +194,8 @@ def router_config(
         "    // Shared memory off, as armd's own configurations have it: a router otherwise keeps a 16 MB",
         "    // segment for every client on its host that ever sent a payload over 3 KB (docs/reliability.md).",
         "    shared_memory: { enabled: false },",
+        "    // Room for an operator's session beside anyone's 1,000 (Zenoh's default is 1,000 in all).",
+        f"    unicast: {{ max_sessions: {MAX_SESSIONS} }},",
         "    // Every session must log in (Zenoh's user/password is all or nothing for a router).",
         f"    auth: {{ usrpwd: {{ dictionary_file: {json.dumps(users_file)} }} }},",
         "    link: {",

@@ -35,10 +35,15 @@ def free_endpoint() -> str:
 # held in memory before anyone may look at its size): larger ones are dropped as they arrive.
 # armd's largest is a trajectory (at most 8 MiB: adapters/trajectory_message.py) or its reply.
 MAX_MESSAGE_BYTES = 16 * 1024 * 1024
+# Sessions a router of armd's holds (Zenoh's default: 1,000, which 999 sessions of anyone's filled:
+# an operator's `armd stop` could not connect). Each is a socket: `armd serve` and `armd router`
+# raise their open-file limit to match (cli/common.py).
+MAX_SESSIONS = 10_000
 
 
 def _quiet(conf: zenoh.Config) -> zenoh.Config:
     conf.insert_json5("transport/link/rx/max_message_size", str(MAX_MESSAGE_BYTES))
+    conf.insert_json5("transport/unicast/max_sessions", str(MAX_SESSIONS))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("scouting/gossip/enabled", "false")
     # Shared memory off: with it, every client session on this host that sends a payload over

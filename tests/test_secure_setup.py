@@ -164,7 +164,7 @@ def test_the_routers_size_limits_are_their_readers() -> None:
     from armd.adapters.trajectory_message import MAX_BYTES
     from armd.service.protocol import Limits
     from armd.service.server import REPORT_BYTES
-    from armd.service.zconfig import MAX_MESSAGE_BYTES
+    from armd.service.zconfig import MAX_MESSAGE_BYTES, MAX_SESSIONS
 
     assert {
         "query": Limits().max_payload_bytes,
@@ -173,3 +173,4 @@ def test_the_routers_size_limits_are_their_readers() -> None:
         "trajectory": MAX_BYTES,
     } == secure_setup.SIZE_LIMITS
     assert secure_setup.MAX_MESSAGE == MAX_MESSAGE_BYTES >= 2 * MAX_BYTES
+    assert secure_setup.MAX_SESSIONS == MAX_SESSIONS
