@@ -3,7 +3,9 @@ holds up a stop, never crashes a callback, never gets an ``internal`` reply."""
 
 from __future__ import annotations
 
+import contextlib
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -24,6 +26,23 @@ def _obstacles(n: int) -> list[dict[str, Any]]:
     return [
         {"name": f"o{i}", "shape": "sphere", "size": [0.01], "position": [1.0 + 0.001 * i, 1.0, 1.0]} for i in range(n)
     ]
+
+
+@contextlib.contextmanager
+def moving_insomniac(client: ArmClient, adapter_session: zenoh.Session) -> Iterator[list[dict[str, Any]]]:
+    """insomniac's simulated arm 0.3 s into a long move: the arm's events, as they come."""
+    sim = SimAdapter(adapter_session, robots.load("insomniac"))
+    try:
+        wait_for(lambda: client.state("insomniac")["source"] == "adapter", what="the adapter's state")
+        events, sub = collect(client, "armd/insomniac/events")
+        try:
+            client.move("insomniac", [1.2, 2.0, -1.8, 1.0, 1.0])
+            time.sleep(0.3)
+            yield events
+        finally:
+            sub.undeclare()  # type: ignore[attr-defined]
+    finally:
+        sim.close()
 
 
 def test_a_world_request_of_thousands_of_obstacles_is_refused_before_any_is_built(client: ArmClient) -> None:
@@ -55,13 +74,7 @@ def test_a_stop_is_answered_and_put_while_a_world_change_holds_the_worlds_lock(
     world change holds it while it builds), a moving arm's stop is answered and its estop
     reaches the adapter, which brakes. (Before: the stop took that lock before its estop, and
     waited for the world change: 5.5-25.5 s behind one request of thousands of obstacles.)"""
-    arm = robots.load("insomniac")
-    sim = SimAdapter(adapter_session, arm)
-    try:
-        wait_for(lambda: client.state("insomniac")["source"] == "adapter", what="the adapter's state")
-        events, sub = collect(client, "armd/insomniac/events")
-        client.move("insomniac", [1.2, 2.0, -1.8, 1.0, 1.0])
-        time.sleep(0.3)
+    with moving_insomniac(client, adapter_session) as events:
         with service.handlers._world_lock:  # (the real lock of the running service)
             reply = client.call("insomniac/stop", timeout=3.0)
             wait_for(
@@ -70,9 +83,6 @@ def test_a_stop_is_answered_and_put_while_a_world_change_holds_the_worlds_lock(
                 what="the stop at the adapter",
             )
         wait_for(lambda: not client.state("insomniac")["moving"], timeout=5.0, what="the arm at rest")
-        sub.undeclare()  # type: ignore[attr-defined]
-    finally:
-        sim.close()
 
 
 def test_any_estop_payload_stops_the_arm_and_junk_on_the_other_keys_is_rejected(
@@ -169,18 +179,9 @@ def test_a_stop_whose_request_cannot_be_read_still_stops_the_arm(
     """A stop is never refused, not for its request either: the estop goes out, the arm brakes,
     and the reply says why the request was not read. (Before: ``bad_request`` or ``too_large``,
     and the arm went on.)"""
-    arm = robots.load("insomniac")
-    sim = SimAdapter(adapter_session, arm)
-    try:
-        wait_for(lambda: client.state("insomniac")["source"] == "adapter", what="the adapter's state")
-        events, sub = collect(client, "armd/insomniac/events")
-        client.move("insomniac", [1.2, 2.0, -1.8, 1.0, 1.0])
-        time.sleep(0.3)
+    with moving_insomniac(client, adapter_session) as events:
         (reply,) = list(client.session.get("armd/insomniac/stop", payload=payload, timeout=10.0))
         assert reply.ok is not None, reply.err.payload.to_bytes()  # type: ignore[union-attr]
         body = orjson.loads(reply.ok.payload.to_bytes())
         assert "was not read" in body["warning"] and "stopped all the same" in body["warning"], body
         wait_for(lambda: any(e["event"] == "accepted" and e.get("trajectory") == "stop" for e in events), timeout=5)
-        sub.undeclare()  # type: ignore[attr-defined]
-    finally:
-        sim.close()
