@@ -24,6 +24,16 @@ every limit (:meth:`stop_command`), whatever the service believed. The adapter n
 service to run what it accepted: if the service dies mid-move, the move is finished, and the
 estop still works through the router.
 
+A tracking stream's trajectories (one a cycle, each ending at rest where the stream's deadman
+runs out) splice: each names the trajectory it takes over from and when (``after``, ``at``:
+:mod:`.trajectory_message`), its first sample that one's sample there. The adapter checks the
+junction (the same position; the acceleration across it within the limit), keeps it until
+its time comes, and switches there with no jump and no event (a splice refused is said:
+``rejected``); one that names another trajectory than the last it has, or comes more than
+``MAX_SPLICE_LATE`` after its time, is refused, and the arm goes on to the end of what it has
+(at rest). Nothing waits for the service: a stream whose service dies brakes where its
+deadman said.
+
 A subclass implements :meth:`execute` (send what is due at time ``t`` of a trajectory; a
 ``stop`` also while the controller is faulty), :meth:`hold` (bring the arm to rest now with no
 plan, never back: the fallback when a stop cannot be planned), :meth:`measure` (the arm's
@@ -40,7 +50,7 @@ import threading
 import time
 import uuid
 from abc import ABC, abstractmethod
-from collections import OrderedDict
+from collections import OrderedDict, deque
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -49,19 +59,21 @@ import orjson
 import zenoh
 
 from armd import planning
-from armd.errors import ArmdError, BadRequest, ControllerFault, PositionUnknown, StartMismatch
+from armd.errors import ArmdError, BadRequest, ControllerFault, LimitError, PositionUnknown, StartMismatch
 from armd.planning import JointState
 from armd.robots import Robot
 from armd.robots import calibration as robots_calibration
 from armd.service.protocol import encode
 
-from .trajectory_message import MAX_BYTES, Command, check_size, motion, parse
+from .trajectory_message import MAX_BYTES, RATE_TOL, Command, check_size, motion, parse
 
 log = logging.getLogger(__name__)
 JSON = zenoh.Encoding.APPLICATION_JSON
 START_TOL = 0.02  # [rad] how far a trajectory's first sample may be from where the arm is, at rest
 START_LAG = 0.1  # [s] ... plus this long at the arm's present speed (the planner's state was a little old)
-SEEN_IDS = 4096  # trajectory ids remembered, so that a replayed one is refused
+SEEN_IDS = 65536  # trajectory ids remembered, so that a replayed one is refused (a stream's 100 a second: 11 min)
+MAX_SPLICE_LATE = 0.01  # [s] how long after its time a stream's next trajectory may still take over
+SPLICE_TOL = 1e-6  # [rad] how far a splice's first sample may be from the sample it takes over at
 CONTROL_BYTES = 4096  # [bytes] the most an estop or unlock message may carry
 UNLOCKS = ("home", "assume_rest")
 
@@ -138,6 +150,7 @@ def _prioritise_this_thread(name: str) -> None:
 
 class Adapter(ABC):
     kind = "adapter"
+    splices = True  # whether it follows a tracking stream (its trajectories spliced one into the next)
     tick = 0.005  # [s] the control loop's period; execute() decides what is due
     run_tick = 0.005  # [s] its period while a trajectory runs
 
@@ -163,6 +176,12 @@ class Adapter(ABC):
         self._t0 = 0.0
         self._new = False
         self._finished = True
+        self._chain: list[Command] = []  # a stream's trajectories waiting for their time, in order
+        self._stopped_streams: OrderedDict[str, None] = OrderedDict()  # streams an estop ended: none of theirs runs
+        self._wake = threading.Event()  # (the control loop looks again at once: a trajectory came)
+        self.splice_lateness: deque[float] = deque(
+            maxlen=4096
+        )  # [s] how late a stream's trajectories came (< 0: early)
         self.fault: str | None = None
         self._fault_count = 0  # faulty checks (and errors) since the fault began
         self._fault_since = 0.0  # [s] when it began (monotonic)
@@ -232,6 +251,12 @@ class Adapter(ABC):
                 break
         vel, acc = motion(traj.position, 1.0 / traj.rate_hz)
         return Command(ident, "stop", traj.rate_hz, traj.times, traj.position, vel, acc, traj.commands)
+
+    def spliced(self, before: Command, cmd: Command) -> None:
+        """Called on the control loop when a stream's ``cmd`` takes over from ``before`` (at
+        ``cmd.at`` of it; ``t`` goes on from there, less ``cmd.at``), before ``cmd`` is first
+        executed (the default: nothing; an adapter with a clock of its own moves it)."""
+        return None
 
     def admit(self, cmd: Command) -> None:
         """Raise an :class:`ArmdError` if this controller cannot run ``cmd`` (before anything of
@@ -310,6 +335,19 @@ class Adapter(ABC):
                     "or confirm its rest pose (armd unlock) before moving it",
                     robot=self.robot.name,
                 )
+            if cmd.track is not None:
+                if not self.splices:
+                    raise BadRequest(f"the {self.kind} adapter does not follow a tracking stream", field="track")
+                if cmd.track in self._stopped_streams:
+                    raise BadRequest(f"tracking stream {cmd.track!r} was stopped here: a new one starts", field="track")
+                if cmd.after is not None and self._splice(cmd):
+                    return
+                with self._lock:
+                    if self._cmd is not None and not self._finished:
+                        raise BadRequest(
+                            f"{self.robot.name} is moving ({self._cmd.id}): a tracking stream starts from rest",
+                            field="splice",
+                        )
             self._check_start(cmd)
             with self._lock:
                 if cmd.id in self._seen:
@@ -320,6 +358,71 @@ class Adapter(ABC):
             self.event("rejected", id=cmd.id, reason=e.message, error=e.to_dict())
             return
         self._install(cmd)
+
+    def _splice(self, cmd: Command) -> bool:
+        """Queue a stream's ``cmd`` to take over from the trajectory it names, at its time
+        (True); False if nothing runs (then it starts as any trajectory does, where the arm
+        is); else :class:`BadRequest` saying why not."""
+        with self._lock:
+            if self._finished:  # (what was left of a stream that ended: an abort, a fault's stop)
+                self._chain.clear()
+            before = self._chain[-1] if self._chain else None
+            if before is None and self._cmd is not None and not self._finished:
+                before = self._cmd
+            if before is None:
+                return False
+            if before.id != cmd.after:
+                raise BadRequest(
+                    f"trajectory {cmd.id} takes over from {cmd.after}, but {before.id} is the last one here "
+                    "(a stop, a move, or a stream's trajectory that was refused came between)",
+                    field="splice.after",
+                )
+            k = round(cmd.at * cmd.rate_hz)
+            if before.rate_hz != cmd.rate_hz or k > len(before.times) - 1:
+                raise BadRequest(
+                    f"trajectory {cmd.id} takes over at sample {k} of {before.id}: it has "
+                    f"{len(before.times)} at {before.rate_hz:g} Hz, this one {cmd.rate_hz:g} Hz",
+                    field="splice.at",
+                )
+            off = np.abs(cmd.position[0] - before.position[k])
+            if np.any(off > SPLICE_TOL):
+                j = int(np.argmax(off))
+                raise StartMismatch(
+                    f"trajectory {cmd.id} starts {off[j]:.3g} rad from {before.id}'s sample at "
+                    f"{cmd.at:.4f} s on {self.robot.joint_names[j]}",
+                    field="position",
+                    joint=self.robot.joint_names[j],
+                )
+            if k > 0 and len(cmd.times) > 1:  # the acceleration across the junction
+                acc = (cmd.position[1] - 2.0 * cmd.position[0] + before.position[k - 1]) * cmd.rate_hz**2
+                limit = self.robot.limits.acceleration
+                over = np.abs(acc) > limit * (1 + RATE_TOL) + 1e-9
+                if np.any(over):
+                    j = int(np.argmax(np.abs(acc) / limit))
+                    raise LimitError(
+                        f"joint {self.robot.joint_names[j]!r} changes speed at {acc[j]:.6g} rad/s^2 where "
+                        f"trajectory {cmd.id} takes over, over its acceleration limit {limit[j]:.6g} rad/s^2",
+                        name=self.robot.joint_names[j],
+                        value=float(acc[j]),
+                        bounds=(-float(limit[j]), float(limit[j])),
+                        kind="acceleration",
+                    )
+            due = self._t0 + sum(c.at for c in self._chain) + cmd.at
+            late = time.monotonic() - due
+            self.splice_lateness.append(late)
+            if late > MAX_SPLICE_LATE:
+                raise BadRequest(
+                    f"trajectory {cmd.id} came {late * 1e3:.0f} ms after its time to take over from "
+                    f"{cmd.after} (at most {MAX_SPLICE_LATE * 1e3:.0f} ms): the arm goes on to that one's end",
+                    field="splice.at",
+                    late=late,
+                )
+            if cmd.id in self._seen:
+                raise BadRequest(f"trajectory {cmd.id} was accepted before: an id runs at most once", field="id")
+            self._remember(cmd.id)
+            self._chain.append(cmd)
+        self._wake.set()
+        return True
 
     def _remember(self, ident: str) -> None:
         self._seen[ident] = None
@@ -353,9 +456,11 @@ class Adapter(ABC):
             # said before the loop can see it (under the lock): "accepted" always precedes "started"
             self.event("accepted", id=cmd.id, trajectory=cmd.kind, duration=cmd.duration)
             self._cmd = cmd
+            self._chain.clear()
             self._t0 = time.monotonic()
             self._new = True
             self._finished = False
+        self._wake.set()
 
     def _on_estop(self, sample: zenoh.Sample) -> None:
         """Any put stops the arm: a malformed message too (its id is made up)."""
@@ -375,6 +480,11 @@ class Adapter(ABC):
         controller faulty or not (a stop runs under a fault). If the stop cannot be planned,
         :meth:`hold`."""
         log.info("%s: %s (%s)", self.robot.name, reason, ident)
+        with self._lock:  # the stream it stops (running, or the last one: at rest) is over here
+            if self._cmd is not None and self._cmd.track is not None:
+                self._stopped_streams[self._cmd.track] = None
+                while len(self._stopped_streams) > SEEN_IDS:
+                    self._stopped_streams.popitem(last=False)
         try:
             cmd: Command | None = self.stop_command(ident)
         except Exception as e:  # a stop must happen whatever: hold
@@ -386,6 +496,7 @@ class Adapter(ABC):
                 if self._cmd is not None and not self._finished:
                     self.event("aborted", id=self._cmd.id, reason=reason)
                 self._finished = True
+                self._chain.clear()
             self.event("accepted", id=ident, trajectory="stop", duration=0.0, reason=reason)
             try:
                 self.hold()
@@ -427,9 +538,17 @@ class Adapter(ABC):
                     self.check()
                     if self.fault:
                         self._recovered()
+                switched: list[tuple[Command, Command]] = []
                 with self._lock:  # (after the check, which may have ended or replaced the trajectory)
+                    while self._chain and not self._finished and time.monotonic() >= self._t0 + self._chain[0].at:
+                        nxt = self._chain.pop(0)  # a stream's next trajectory, its time come
+                        if self._cmd is not None:
+                            switched.append((self._cmd, nxt))
+                        self._cmd, self._t0 = nxt, self._t0 + nxt.at
                     cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
                     self._new = False
+                for before, nxt in switched:
+                    self.spliced(before, nxt)
                 # (a stop runs under a fault too: the one that brakes the arm after it)
                 if cmd is not None and not finished and (not self.fault or cmd.kind == "stop"):
                     if first:
@@ -453,7 +572,12 @@ class Adapter(ABC):
                     self._publish_state()
             else:  # (every pass: what a trajectory's start is checked against)
                 self._refresh(ask=False)
-            self._stop.wait(self.run_tick if cmd is not None and not finished else self.tick)
+            wait = self.run_tick if cmd is not None and not finished else self.tick
+            with self._lock:
+                if self._chain and not self._finished:  # (a stream's next trajectory: taken over on time)
+                    wait = min(wait, max(self._t0 + self._chain[0].at - time.monotonic(), 0.0))
+            self._wake.wait(wait)
+            self._wake.clear()
 
     def finished(self, cmd: Command) -> None:
         """Called on the control loop when ``cmd`` is complete (the default: nothing)."""
@@ -513,6 +637,7 @@ class Adapter(ABC):
             with self._lock:
                 running = self._cmd is not None and not self._finished
                 self._finished = True
+                self._chain.clear()
             if running and self._cmd is not None:
                 self.event("aborted", id=self._cmd.id, reason=reason)
             self.event("fault", reason=f"stop not planned ({type(e).__name__}: {e}): held", count=self._fault_count)
@@ -588,6 +713,7 @@ class Adapter(ABC):
 
     def close(self) -> None:
         self._stop.set()
+        self._wake.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
         for entity in (self._token, *self._subs, self._state_pub, self._event_pub):

@@ -238,6 +238,7 @@ class _Lines:
 
 class GrblAdapter(SerialAdapter):
     kind = "grbl"
+    splices = False  # (GRBL's planner holds 15 blocks of the old trajectory: a stream is jogged, $J=, not spliced)
 
     def __init__(
         self,

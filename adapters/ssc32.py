@@ -763,6 +763,12 @@ class SSC32Adapter(SerialAdapter):
         )
         self.event("late", id=cmd.id, late=late, speed_ratio=v)
 
+    def spliced(self, before: Command, cmd: Command) -> None:
+        """A stream's next trajectory takes over: the plan's clock (``_tau``, which slips with
+        the board's) goes on in its time, and lines go on (the last one may have been final)."""
+        self._tau -= cmd.at
+        self._settled = False
+
     def finished(self, cmd: Command) -> None:
         self._save_pose()
 

@@ -11,6 +11,12 @@ q[k-1]) * rate^2`` within the limits, the arm held at the last sample afterwards
 trajectory must end at rest). One bad sample rejects the whole trajectory. Where the first
 sample must be (near the arm) and that an id runs at most once are the adapter's checks
 (:class:`clients.adapter.Adapter`): they need its state.
+
+A tracking stream's trajectory (the service's, one a cycle: :mod:`planning.online`) carries
+``"splice": {"after": <id>, "at": <s>}``: it takes over from trajectory ``after`` at its time
+``at``, a whole number of samples in, where its first sample is ``after``'s sample there (the
+same position; the adapter checks that, and the acceleration across the junction), and
+``"track": <session>``, the stream it belongs to.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ MAX_SAMPLES = 20_000  # the service's default max_samples
 MAX_DURATION = 600.0  # [s]
 RATE_RANGE = (1.0, 1000.0)  # [Hz]
 MAX_ID = 64  # [characters]
+SPLICE_FIELDS = ("after", "at")
 KINDS = ("move", "stop")
 RATE_TOL = 1e-6  # relative slack on the finite-difference limits (rounding of the samples)
 
@@ -49,6 +56,9 @@ class Command:
     velocity: FloatArray
     acceleration: FloatArray
     commands: NDArray[np.int64]
+    after: str | None = None  # a stream's: the trajectory it takes over from ...
+    at: float = 0.0  # [s] ... at this time of it
+    track: str | None = None  # the tracking stream's session it belongs to
 
     @property
     def duration(self) -> float:
@@ -105,6 +115,8 @@ def parse(robot: Robot, payload: bytes) -> Command:
         rate = msg["rate_hz"]
         ident = msg.get("id")
         kind = msg.get("kind", "move")
+        splice = msg.get("splice")
+        track = msg.get("track")
     except (ValueError, KeyError, TypeError) as e:
         raise BadRequest(f"malformed trajectory message: {e}", field="trajectory") from None
     if msg.get("robot") not in (None, robot.name):
@@ -139,8 +151,29 @@ def parse(robot: Robot, payload: bytes) -> Command:
     planning.check_samples(robot, times, pos, np.zeros_like(pos), np.zeros_like(pos), np.zeros_like(pos))
     _within(robot, times, vel, robot.limits.velocity, "velocity", "rad/s")
     _within(robot, times, acc, robot.limits.acceleration, "acceleration", "rad/s^2")
+    after, at = _splice(splice, kind, float(rate))
+    if track is not None and (not isinstance(track, str) or not 0 < len(track) <= MAX_ID):
+        raise BadRequest(f"track must be a session's id (1 to {MAX_ID} characters)", field="track")
     commands = planning.actuator_commands(robot, times, robot.limits.clip(pos))
-    return Command(ident, kind, float(rate), times, pos, vel, acc, commands)
+    return Command(ident, kind, float(rate), times, pos, vel, acc, commands, after, at, track)
+
+
+def _splice(splice: object, kind: str, rate: float) -> tuple[str | None, float]:
+    """``(after, at)`` of a stream's trajectory, or ``(None, 0.0)``; :class:`BadRequest` if
+    malformed: ``after`` an id, ``at`` a whole number of samples [s] within ``MAX_DURATION``."""
+    if splice is None:
+        return None, 0.0
+    if kind != "move" or not isinstance(splice, dict) or set(splice) != set(SPLICE_FIELDS):
+        raise BadRequest('splice must be {"after": <id>, "at": <s>} (a move\'s)', field="splice")
+    after, at = splice["after"], splice["at"]
+    if not isinstance(after, str) or not 0 < len(after) <= MAX_ID:
+        raise BadRequest(f"splice.after must be a trajectory id (1 to {MAX_ID} characters)", field="splice.after")
+    if isinstance(at, bool) or not isinstance(at, (int, float)) or not 0.0 <= at <= MAX_DURATION:
+        raise BadRequest(f"splice.at must be a time in [0, {MAX_DURATION:g}] s", field="splice.at")
+    k = round(at * rate)
+    if abs(k / rate - at) > 1e-9:
+        raise BadRequest("splice.at must be a whole number of samples (k / rate_hz)", field="splice.at")
+    return after, k / rate
 
 
 def _within(robot: Robot, times: FloatArray, values: FloatArray, limit: FloatArray, kind: str, unit: str) -> None:

@@ -23,6 +23,8 @@ from armd.robots.types import FloatArray
 from armd.service.protocol import encode
 from armd.service.zconfig import client_config
 
+from .track import Track
+
 JSON = zenoh.Encoding.APPLICATION_JSON
 MAX_QUERIERS = 256  # kept per client: (key, timeout) pairs
 RETRY_PAUSE = 0.02  # [s] a request that ended at once with no reply is asked again after this, doubling ...
@@ -387,6 +389,13 @@ class ArmClient:
             if sub is not None:
                 sub.undeclare()
         return list(got)
+
+    def track(self, robot: str, *, deadman: float | None = None, session: str | None = None) -> Track:
+        """A tracking stream of ``robot`` (:class:`~clients.track.Track`): ``send`` targets as
+        they come (joints, a point, a velocity), the arm follows each within every limit, and
+        brakes to rest when no put comes for ``deadman`` [s] (the service's default: 0.25).
+        ``session``: the stream's id (default: a new one)."""
+        return Track(self.session, self.prefix, robot, deadman=deadman, name=session)
 
     def gripper(self, robot: str, opening: float) -> dict[str, Any]:
         """Open (1) or close (0) the gripper, or anything between."""

@@ -179,7 +179,11 @@ def _segment(
         else:
             inp.synchronization = ruckig.Synchronization.Phase if at_rest else ruckig.Synchronization.Time
     traj = ruckig.Trajectory(n)
-    calculate(otg, inp, traj)
+    try:
+        calculate(otg, inp, traj)
+    except PlannerError:  # (Ruckig's whole-cycle search fails on some states at a limit exactly: timed freely)
+        inp.duration_discretization = ruckig.DurationDiscretization.Continuous
+        calculate(otg, inp, traj)
     return traj
 
 

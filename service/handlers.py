@@ -77,8 +77,10 @@ class Handlers:
         publish_gripper: Publish | None = None,
         publish_estop: Publish | None = None,
         sensor_book: SensorBook | None = None,
+        end_tracking: Callable[[str, str], None] | None = None,
     ) -> None:
         self.arms = dict(arms)
+        self.end_tracking = end_tracking or (lambda robot, reason: None)  # (a stop's, a move's: the stream ends)
         self.sensor_book = sensor_book
         self._stop_counts: dict[str, int] = {}  # per arm: stops seen (a pick or place under way ends at one)
         self._sequencing: set[str] = set()  # arms running a pick or place (one at a time)
@@ -189,6 +191,7 @@ class Handlers:
         if isinstance(goal, Mapping) and isinstance(goal.get("target"), list):
             msg["target"] = goal["target"]  # the Cartesian target asked for (viewers draw it)
         deadline.check()  # the last moment to give up: after this the arm moves
+        self.end_tracking(arm.name, "a move took over")  # (a stream in progress: the move replaces it)
         source = known.source
         try:
             adapter = self.publish(arm, msg)  # (once an adapter has accepted it)
@@ -220,6 +223,7 @@ class Handlers:
         out on ``estop`` first, and every adapter brakes from its own state; the reply's
         duration and rest pose are the service's estimate from what it knows of the arm."""
         ident = uuid.uuid4().hex
+        self.end_tracking(arm.name, "stop")  # (first: no stream trajectory goes out after the estop)
         self.publish_estop(arm, {"id": ident, "by": "service"})  # (first: before anything that could wait)
         self.note_stop(arm.name)
         try:  # (read after: a request a stop cannot read still stops the arm, and says so)

@@ -94,6 +94,13 @@ def router_config(
         _rule("service-tokens", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], [f"{p}/*/adapter/*"]),
         _rule("service-tokens-get", "egress", ["liveliness_token", "reply"], [f"{p}/*/adapter/*"]),
         _rule("service-own-token", "ingress", ["liveliness_token"], [f"{p}/service/*"]),
+        "      // (tracking streams: an operator's puts on track, every estop (which ends a stream), and the",
+        "      //  stream's events, said on the arm's events: never taken for an adapter's, whose token it",
+        "      //  cannot declare)",
+        _rule("service-track", "ingress", ["declare_subscriber", "put"], _keys(p, "*", ("track", "estop", "events"))),
+        _rule(
+            "service-track-get", "egress", ["put", "declare_subscriber"], _keys(p, "*", ("track", "estop", "events"))
+        ),
         "      // (replicas: each follows the others' tokens and shares the arms' run-time obstacles)",
         _rule(
             "service-replicas",
@@ -121,11 +128,12 @@ def router_config(
             _rule(f"adapter-{r}-token", "ingress", ["liveliness_token"], [f"{p}/{r}/adapter/*"]),
         ]
     rules += [
-        "      // -- an operator: asks every verb, puts estop and unlock, watches state, events, trajectories, sensors",
+        "      // -- an operator: asks every verb, puts estop, unlock and track (a tracking stream), watches state,",
+        "      //    events, trajectories, sensors",
         _rule("operator-ask", "ingress", ["query"], [f"{p}/**"]),
         _rule("operator-ask-get", "egress", ["reply", "declare_queryable"], [f"{p}/**"]),
-        _rule("operator-stop", "ingress", ["put"], _keys(p, "*", ("estop", "unlock"))),
-        _rule("operator-stop-see", "egress", ["declare_subscriber"], _keys(p, "*", ("estop", "unlock"))),
+        _rule("operator-stop", "ingress", ["put"], _keys(p, "*", ("estop", "unlock", "track"))),
+        _rule("operator-stop-see", "egress", ["declare_subscriber"], _keys(p, "*", ("estop", "unlock", "track"))),
         _rule("operator-watch", "ingress", ["declare_subscriber"], _keys(p, "*", WATCHED)),
         _rule("operator-watch-get", "egress", ["put"], _keys(p, "*", WATCHED)),
         '      // -- a guest: the read-only verbs (a "guest" user whose password is published)',
@@ -151,6 +159,8 @@ def router_config(
         "service-tokens",
         "service-tokens-get",
         "service-own-token",
+        "service-track",
+        "service-track-get",
         "service-replicas",
         "service-replicas-get",
     ]
@@ -178,7 +188,7 @@ def router_config(
     filters = [
         ("requests", ["query"], [f"{p}/**"], SIZE_LIMITS["query"]),
         # (not estop: any put on it stops the arm, whatever it holds; only the 16 MiB above bounds it)
-        ("commands", ["put"], _keys(p, "*", ("gripper", "unlock")), SIZE_LIMITS["control"]),
+        ("commands", ["put"], _keys(p, "*", ("gripper", "unlock", "track")), SIZE_LIMITS["control"]),
         ("reports", ["put"], _keys(p, "*", ADAPTER_KEYS_OUT), SIZE_LIMITS["report"]),
         ("trajectories", ["put"], _keys(p, "*", ("trajectory",)), SIZE_LIMITS["trajectory"]),
     ]

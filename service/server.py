@@ -66,6 +66,8 @@ from .protocol import VERBS, WORLD_BYTES, Limits, decode, encode, request_deadli
 from .replicas import Replicas, changes
 from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
+from .track_message import TRACK_BYTES
+from .tracking import Tracker
 
 log = logging.getLogger(__name__)
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
@@ -137,7 +139,9 @@ class Service:
             self._publish_gripper,
             self._publish_estop,
             sensor_book=self.sensor_book,
+            end_tracking=self._end_tracking,
         )
+        self._trackers: dict[str, Tracker] = {}  # each arm's tracking stream, made at its first put
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
@@ -189,6 +193,8 @@ class Service:
         self._entities: list[Any] = [
             session.declare_subscriber(f"{self.prefix}/*/state", self._on_state),
             session.declare_subscriber(f"{self.prefix}/*/events", self._on_event),
+            session.declare_subscriber(f"{self.prefix}/*/track", self._on_track),
+            session.declare_subscriber(f"{self.prefix}/*/estop", self._on_estop),
             session.declare_subscriber(
                 f"{self.prefix}/*/sensors/*",
                 lambda sample: self.sensor_book.on_reading(str(sample.key_expr), sample.payload.to_bytes()),
@@ -455,6 +461,13 @@ class Service:
         aborted = event == "aborted" and not str(msg.get("reason", "")).startswith("replaced by")
         if (stopped or aborted) and self._is_live(robot, str(adapter)):
             self.handlers.note_stop(robot)
+        if event in ("rejected", "aborted") and isinstance(ident, str) and self._is_live(robot, str(adapter)):
+            tracker = self._trackers.get(robot)
+            if tracker is not None:
+                error = msg.get("error")
+                tracker.adapter_said(
+                    event, ident, str(msg.get("reason", "no reason given")), error if isinstance(error, dict) else None
+                )
         if event not in ("accepted", "rejected") or not isinstance(ident, str) or not isinstance(adapter, str):
             return
         with self._lock:
@@ -473,6 +486,53 @@ class Service:
                 waiter.rejections += 1
                 if waiter.rejections >= len(self._adapters.get(robot, ())):  # every live adapter said no
                     waiter.done.set()
+
+    # -- tracking streams --------------------------------------------------------------------
+
+    def _on_track(self, sample: zenoh.Sample) -> None:
+        """A put on ``<prefix>/<robot>/track``: to the arm's :class:`Tracker` (the leading
+        replica's alone: one service drives an arm)."""
+        robot = str(sample.key_expr).split("/")[-2]
+        arm = self.arms.get(robot)
+        if arm is None or not self.replicas.leading():
+            return
+        tracker = self._tracker(arm)
+        if tracker is None:
+            return
+        size = len(sample.payload)
+        if size > TRACK_BYTES:  # (not copied, not parsed)
+            tracker.say("bad_request", "payload", f"a track put has at most {TRACK_BYTES} bytes, this one {size}")
+            return
+        tracker.put(sample.payload.to_bytes())
+
+    def _tracker(self, arm: Robot) -> Tracker | None:
+        with self._lock:
+            tracker = self._trackers.get(arm.name)
+            if tracker is None and not self._closing:
+                publisher = self._publishers[arm.name]
+                events = f"{self.prefix}/{arm.name}/events"
+                tracker = Tracker(
+                    arm,
+                    publish=lambda msg: publisher.put(encode(msg)),
+                    publish_gripper=lambda msg: self._publish_gripper(arm, msg),
+                    event=lambda msg: self.session.put(
+                        events,
+                        encode({**msg, "robot": arm.name, "service": self.id, "time": time.time()}),
+                        encoding=JSON,
+                    ),
+                    current=lambda: self.book.current(arm),
+                )
+                self._trackers[arm.name] = tracker
+        return tracker
+
+    def _on_estop(self, sample: zenoh.Sample) -> None:
+        """Any estop of an arm (whoever put it) ends its tracking stream."""
+        self._end_tracking(str(sample.key_expr).split("/")[-2], "estop")
+
+    def _end_tracking(self, robot: str, reason: str) -> None:
+        tracker = self._trackers.get(robot)
+        if tracker is not None:
+            tracker.end(reason)
 
     def _publish_estop(self, arm: Robot, message: dict[str, Any]) -> None:
         self.session.put(
@@ -638,6 +698,10 @@ class Service:
         self.replicas.close()
         with self._queryable_lock:
             queryable, self._queryable, self._closing = self._queryable, None, True
+        with self._lock:
+            trackers = list(self._trackers.values())
+        for tracker in trackers:
+            tracker.close()
         if queryable is not None:
             try:
                 queryable.undeclare()

@@ -201,8 +201,18 @@ def test_a_guest_cannot_watch_an_arm(roles: Callable[[str], zenoh.Session], key:
     assert not delivered(adapter, f"armd/desk4/{key}", guest)
 
 
-def test_neither_the_service_nor_an_operator_can_put_an_adapters_events(roles: Callable[[str], zenoh.Session]) -> None:
-    """An adapter's `accepted` is what makes a move succeed: nobody else may say it."""
+def test_an_operator_cannot_put_an_adapters_events(roles: Callable[[str], zenoh.Session]) -> None:
+    """An adapter's `accepted` is what makes a move succeed: nobody else may say it. (The service
+    says its tracking streams' events there, and believes an `accepted` only under a live
+    adapter's id, whose token it cannot declare: test_the_service_cannot_speak_for_an_adapter.)"""
     service, operator, observer = roles("service"), roles("operator"), roles("service")
-    assert not delivered(service, "armd/desk4/events", observer)
+    assert delivered(service, "armd/desk4/events", observer)
     assert not delivered(operator, "armd/desk4/events", observer)
+
+
+def test_an_operator_streams_to_the_service_and_a_guest_cannot(roles: Callable[[str], zenoh.Session]) -> None:
+    service, operator, guest, adapter = roles("service"), roles("operator"), roles("guest"), roles("adapter-desk4")
+    assert delivered(operator, "armd/desk4/track", service)
+    assert delivered(operator, "armd/desk4/estop", service)  # (an estop ends a stream: the service hears it)
+    assert not delivered(guest, "armd/desk4/track", service)
+    assert not delivered(adapter, "armd/desk4/track", service)

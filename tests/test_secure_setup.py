@@ -173,4 +173,7 @@ def test_the_routers_size_limits_are_their_readers() -> None:
         "trajectory": MAX_BYTES,
     } == secure_setup.SIZE_LIMITS
     assert secure_setup.MAX_MESSAGE == MAX_MESSAGE_BYTES >= 2 * MAX_BYTES
+    from armd.service.track_message import TRACK_BYTES
+
+    assert TRACK_BYTES == CONTROL_BYTES  # (track puts share the commands' filter)
     assert secure_setup.MAX_SESSIONS == MAX_SESSIONS
