@@ -30,7 +30,8 @@ runs out) splice: each names the trajectory it takes over from and when (``after
 junction (the same position; the acceleration across it within the limit), keeps it until
 its time comes, and switches there with no jump and no event (a splice refused is said:
 ``rejected``); one that names another trajectory than the last it has, or comes more than
-``MAX_SPLICE_LATE`` after its time, is refused, and the arm goes on to the end of what it has
+``MAX_SPLICE_LATE`` after its time (unless it takes over at the other's end, where the arm
+rests: it starts from its beginning when it comes), is refused, and the arm goes on to the end of what it has
 (at rest). Nothing waits for the service: a stream whose service dies brakes where its
 deadman said.
 
@@ -44,8 +45,10 @@ well?); it may override :meth:`estimate` (the state with nothing asked of the co
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import queue
 import threading
 import time
 import uuid
@@ -74,6 +77,7 @@ START_LAG = 0.1  # [s] ... plus this long at the arm's present speed (the planne
 SEEN_IDS = 65536  # trajectory ids remembered, so that a replayed one is refused (a stream's 100 a second: 11 min)
 MAX_SPLICE_LATE = 0.01  # [s] how long after its time a stream's next trajectory may still take over
 SPLICE_TOL = 1e-6  # [rad] how far a splice's first sample may be from the sample it takes over at
+INTAKE = 256  # trajectories waiting to be checked, at most (a stream's: one a cycle)
 CONTROL_BYTES = 4096  # [bytes] the most an estop or unlock message may carry
 UNLOCKS = ("home", "assume_rest")
 
@@ -137,15 +141,15 @@ def calibrated(robot: Robot, calibration: str | Path | None = None, state_dir: s
 LOOP_PRIORITY = 20  # SCHED_FIFO priority of an adapter's control loop (ros2_control's controller manager uses 50)
 
 
-def _prioritise_this_thread(name: str) -> None:
+def _prioritise_this_thread(name: str, priority: int = LOOP_PRIORITY, what: str = "the control loop") -> None:
     """The control loop ahead of ordinary processes (SCHED_FIFO), where the system permits it
     (root, or CAP_SYS_NICE, or an rtprio limit in /etc/security/limits.conf): on a busy machine,
     a write held up after it was timed reaches the board late. Else as it is, said once."""
     try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(LOOP_PRIORITY))  # (0: this thread, on Linux)
-        log.info("%s: the control loop runs at real-time priority (SCHED_FIFO %d)", name, LOOP_PRIORITY)
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))  # (0: this thread, on Linux)
+        log.info("%s: %s runs at real-time priority (SCHED_FIFO %d)", name, what, priority)
     except (PermissionError, OSError, AttributeError) as e:
-        log.info("%s: the control loop runs at normal priority (no SCHED_FIFO: %s)", name, e)
+        log.info("%s: %s runs at normal priority (no SCHED_FIFO: %s)", name, what, e)
 
 
 class Adapter(ABC):
@@ -179,6 +183,12 @@ class Adapter(ABC):
         self._chain: list[Command] = []  # a stream's trajectories waiting for their time, in order
         self._stopped_streams: OrderedDict[str, None] = OrderedDict()  # streams an estop ended: none of theirs runs
         self._wake = threading.Event()  # (the control loop looks again at once: a trajectory came)
+        self._stops = 0  # estops so far
+        self._raised: set[int] = set()  # Zenoh's threads put at real-time priority
+        self._intake: queue.Queue[tuple[bytes, int] | None] = queue.Queue(INTAKE)
+        self._intake_thread = threading.Thread(
+            target=self._take_in, name=f"{self.kind}-intake-{robot.name}", daemon=True
+        )
         self.splice_lateness: deque[float] = deque(
             maxlen=4096
         )  # [s] how late a stream's trajectories came (< 0: early)
@@ -287,6 +297,7 @@ class Adapter(ABC):
         self._token = self.session.liveliness().declare_token(f"{self._base}/adapter/{self.id}")
         if self._refresh():
             self._publish_state()  # where the arm is, at once (the service trusts states of live tokens only)
+        self._intake_thread.start()
         self._thread.start()
 
     def event(self, event: str, **fields: Any) -> None:
@@ -309,6 +320,13 @@ class Adapter(ABC):
             self.event("rejected", reason=f"gripper command: {e}")
 
     def _on_trajectory(self, sample: zenoh.Sample) -> None:
+        """A trajectory, handed to the intake thread (:meth:`_take_in`): Zenoh's thread only copies
+        it. Parsing and checking one (a millisecond or two of a stream's, a hundred a second) holds
+        Python's lock; done on Zenoh's thread, of ordinary priority, a busy machine preempts it
+        holding the lock, and the control loop, however urgent, waits: the SSC-32's lines then came
+        65 ms late, the board stopped dead at speed (130x its acceleration limit, measured beside two
+        busy processes). The intake thread runs at the loop's real-time priority, one below."""
+        self._raise_this_thread()
         try:
             check_size(len(sample.payload))  # (before it is copied)
         except ArmdError as e:
@@ -316,6 +334,41 @@ class Adapter(ABC):
             self.event("rejected", reason=e.message, error=e.to_dict())
             return
         payload = sample.payload.to_bytes()
+        with self._lock:
+            stops = self._stops
+        try:
+            self._intake.put_nowait((payload, stops))
+        except queue.Full:
+            self.event(
+                "rejected",
+                **_claimed_id(payload),
+                reason=f"{INTAKE} trajectories wait to be checked already: this one is dropped",
+            )
+
+    def _raise_this_thread(self) -> None:
+        """Zenoh's thread that hands over trajectories (a hundred a second from a stream), at
+        real-time priority too, once: each hand-over takes Python's lock, and an ordinary thread
+        preempted holding it (a busy machine) holds up the control loop, whatever its priority."""
+        ident = threading.get_ident()
+        if ident not in self._raised:
+            self._raised.add(ident)
+            _prioritise_this_thread(self.robot.name, LOOP_PRIORITY - 2, "Zenoh's thread that hands trajectories over")
+
+    def _take_in(self) -> None:
+        """The intake thread: each trajectory checked and taken, in the order they came."""
+        _prioritise_this_thread(self.robot.name, LOOP_PRIORITY - 1, "the trajectories' intake")
+        while True:
+            item = self._intake.get()
+            if item is None:
+                return
+            try:
+                self._take(*item)
+            except Exception:  # a bug: never the end of the intake
+                log.exception("%s: a trajectory could not be taken", self.robot.name)
+
+    def _take(self, payload: bytes, stops: int) -> None:
+        """Check ``payload`` and run it, unless an estop came after it arrived (a stop is never
+        undone by what was on its way before it)."""
         try:
             cmd = parse(self.robot, payload)
         except ArmdError as e:
@@ -340,7 +393,7 @@ class Adapter(ABC):
                     raise BadRequest(f"the {self.kind} adapter does not follow a tracking stream", field="track")
                 if cmd.track in self._stopped_streams:
                     raise BadRequest(f"tracking stream {cmd.track!r} was stopped here: a new one starts", field="track")
-                if cmd.after is not None and self._splice(cmd):
+                if cmd.after is not None and self._splice(cmd, stops):
                     return
                 with self._lock:
                     if self._cmd is not None and not self._finished:
@@ -350,6 +403,8 @@ class Adapter(ABC):
                         )
             self._check_start(cmd)
             with self._lock:
+                if self._stops != stops:
+                    raise BadRequest(f"an estop came after trajectory {cmd.id}: it does not run", field="id")
                 if cmd.id in self._seen:
                     raise BadRequest(f"trajectory {cmd.id} was accepted before: an id runs at most once", field="id")
                 self._remember(cmd.id)
@@ -359,11 +414,13 @@ class Adapter(ABC):
             return
         self._install(cmd)
 
-    def _splice(self, cmd: Command) -> bool:
+    def _splice(self, cmd: Command, stops: int) -> bool:
         """Queue a stream's ``cmd`` to take over from the trajectory it names, at its time
         (True); False if nothing runs (then it starts as any trajectory does, where the arm
         is); else :class:`BadRequest` saying why not."""
         with self._lock:
+            if self._stops != stops:
+                raise BadRequest(f"an estop came after trajectory {cmd.id}: it does not run", field="id")
             if self._finished:  # (what was left of a stream that ended: an abort, a fault's stop)
                 self._chain.clear()
             before = self._chain[-1] if self._chain else None
@@ -410,7 +467,7 @@ class Adapter(ABC):
             due = self._t0 + sum(c.at for c in self._chain) + cmd.at
             late = time.monotonic() - due
             self.splice_lateness.append(late)
-            if late > MAX_SPLICE_LATE:
+            if late > MAX_SPLICE_LATE and k < len(before.times) - 1:  # (at its end, at rest: it starts on arrival)
                 raise BadRequest(
                     f"trajectory {cmd.id} came {late * 1e3:.0f} ms after its time to take over from "
                     f"{cmd.after} (at most {MAX_SPLICE_LATE * 1e3:.0f} ms): the arm goes on to that one's end",
@@ -480,6 +537,8 @@ class Adapter(ABC):
         controller faulty or not (a stop runs under a fault). If the stop cannot be planned,
         :meth:`hold`."""
         log.info("%s: %s (%s)", self.robot.name, reason, ident)
+        with self._lock:
+            self._stops += 1  # (a trajectory that came before it and waits to be checked: never run)
         with self._lock:  # the stream it stops (running, or the last one: at rest) is over here
             if self._cmd is not None and self._cmd.track is not None:
                 self._stopped_streams[self._cmd.track] = None
@@ -542,9 +601,12 @@ class Adapter(ABC):
                 with self._lock:  # (after the check, which may have ended or replaced the trajectory)
                     while self._chain and not self._finished and time.monotonic() >= self._t0 + self._chain[0].at:
                         nxt = self._chain.pop(0)  # a stream's next trajectory, its time come
+                        due = self._t0 + nxt.at
                         if self._cmd is not None:
                             switched.append((self._cmd, nxt))
-                        self._cmd, self._t0 = nxt, self._t0 + nxt.at
+                            if nxt.at >= self._cmd.duration - 1e-9:  # (taking over where it rests: from its start)
+                                due = max(due, time.monotonic())
+                        self._cmd, self._t0 = nxt, due
                     cmd, t0, first, finished = self._cmd, self._t0, self._new, self._finished
                     self._new = False
                 for before, nxt in switched:
@@ -714,6 +776,10 @@ class Adapter(ABC):
     def close(self) -> None:
         self._stop.set()
         self._wake.set()
+        if self._intake_thread.is_alive():
+            with contextlib.suppress(queue.Full):
+                self._intake.put_nowait(None)
+            self._intake_thread.join(timeout=2.0)
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
         for entity in (self._token, *self._subs, self._state_pub, self._event_pub):

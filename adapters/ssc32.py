@@ -149,6 +149,11 @@ def _groups(M: FloatArray) -> list[list[int]]:
 
 class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
+    # Not yet: a tracking stream. Idle, the board kept every limit through one (1.0x measured); beside
+    # two busy processes, the lines of a stream's splices came late more often than a move's, the
+    # board ran on to its targets and stopped dead at speed there (4x an acceleration limit,
+    # measured at the emulated board): a stream waits until the adapter keeps its lines on time.
+    splices = False
     run_tick = RUN_TICK
 
     def __init__(
@@ -762,12 +767,6 @@ class SSC32Adapter(SerialAdapter):
             100 * v,
         )
         self.event("late", id=cmd.id, late=late, speed_ratio=v)
-
-    def spliced(self, before: Command, cmd: Command) -> None:
-        """A stream's next trajectory takes over: the plan's clock (``_tau``, which slips with
-        the board's) goes on in its time, and lines go on (the last one may have been final)."""
-        self._tau -= cmd.at
-        self._settled = False
 
     def finished(self, cmd: Command) -> None:
         self._save_pose()

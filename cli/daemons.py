@@ -105,6 +105,9 @@ def cmd_adapter(args: argparse.Namespace) -> int:
         except ControllerFault as e:
             print(f"armd: {e.message}", file=sys.stderr)
             return 1
+    from armd.service.server import SWITCH_INTERVAL
+
+    sys.setswitchinterval(SWITCH_INTERVAL)  # (the control loop waits at most that long for Python's lock)
     stop = signals()
     session = _join(args, stop)
     if session is None:  # interrupted while waiting for a router

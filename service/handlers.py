@@ -30,7 +30,6 @@ from armd.errors import (
     NotReady,
     PositionUnknown,
     Rejected,
-    StartMismatch,
 )
 from armd.planning import JointState
 from armd.robots import Robot
@@ -57,7 +56,7 @@ from .protocol import (
 from .sensor_book import DISPUTE_HOLD, SensorBook
 from .sequence import ABOVE, LIFT, SPEED, Sequence, check_distance, check_speed, sequence_point
 from .sequence import steps as sequence_steps
-from .state import StateBook, implausible, reported_state
+from .state import StateBook, where_the_adapter_is
 
 SENSOR_POLL = 0.05  # [s] how often detect looks for the sweeps it waits for
 SENSOR_MARGIN = 0.1  # [s] of the deadline kept for the answer
@@ -196,7 +195,7 @@ class Handlers:
         try:
             adapter = self.publish(arm, msg)  # (once an adapter has accepted it)
         except Rejected as e:
-            there = _where_the_adapter_is(arm, e.fields.get("error"))
+            there = where_the_adapter_is(arm, e.fields.get("error"))
             if there is None:
                 raise
             # The adapter's word on where the arm is beat the service's (its reports came late):
@@ -528,22 +527,6 @@ def _at_the_limits(arm: Robot, state: JointState) -> JointState:
     limit (a servo settled a count past a goal at its limit) taken at the limit. The state book
     keeps out reports farther off (``state.implausible``); a start a user gives is not clipped."""
     return JointState(arm.limits.clip(state.position), state.velocity, state.acceleration)
-
-
-def _where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
-    """The state an adapter gave with its ``start_mismatch`` refusal, if it is one and
-    believable as a report is (:func:`.state.reported_state`, :func:`.state.implausible`);
-    else None."""
-    if not isinstance(error, Mapping) or error.get("code") != StartMismatch.code:
-        return None
-    state = error.get("state")
-    if not isinstance(state, Mapping):
-        return None
-    try:
-        there = reported_state(arm, state)
-    except ValueError:
-        return None
-    return None if implausible(arm, there) else there
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from armd.errors import StartMismatch
 from armd.planning import JointState, Trajectory
 from armd.robots import Robot
 
@@ -103,3 +104,19 @@ class StateBook:
                 return Known(s, "commanded", True)
             return Known(JointState.at_rest(traj.position[-1].copy()), "commanded", False)
         return Known(JointState.at_rest(np.array(robot.neutral)), "neutral", False)
+
+
+def where_the_adapter_is(arm: Robot, error: object) -> JointState | None:
+    """The state an adapter gave with its ``start_mismatch`` refusal, if it is one and
+    believable as a report is (:func:`reported_state`, :func:`implausible`);
+    else None."""
+    if not isinstance(error, Mapping) or error.get("code") != StartMismatch.code:
+        return None
+    state = error.get("state")
+    if not isinstance(state, Mapping):
+        return None
+    try:
+        there = reported_state(arm, state)
+    except ValueError:
+        return None
+    return None if implausible(arm, there) else there

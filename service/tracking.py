@@ -43,7 +43,7 @@ from armd.planning.online import track_step
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 
-from .state import Known
+from .state import Known, where_the_adapter_is
 from .track_message import DEADMAN, TRACK_BYTES, TrackPut, parse, session_of
 
 log = logging.getLogger(__name__)
@@ -122,9 +122,11 @@ class Tracker:
         self._jog: _Jog | None = None
         self._speed = 1.0
         self._prev: _Sent | None = None
+        self._restart: JointState | None = None  # where an adapter said the arm is, refusing a trajectory
         self._sent: OrderedDict[str, _Sent] = OrderedDict()  # the latest published, by id (a refusal goes back)
         self.late = 0  # trajectories an adapter refused for coming after their time (a busy machine)
         self.lead = LEAD  # [s] how far ahead of now a cycle takes over
+        self.rate_hz = RATE_HZ
         self.followed = 0  # cycles that followed a moving goal (the rest: to a goal at rest)
         self._gripper: tuple[float, float] | None = None  # (opening, when sent)
         self._goals: list[tuple[float, float, FloatArray]] = []  # (when it came, its time, the goal): the pace
@@ -213,7 +215,11 @@ class Tracker:
                     last_id, _ = self._sent.popitem(last=True)
                     if last_id == ident:
                         break
-                self._prev = self._sent.get(sent.after) if sent.after is not None else None
+                there = where_the_adapter_is(self.arm, error)
+                if there is not None:  # (not where it was thought to be: afresh, from where the adapter says)
+                    self._prev, self._restart = None, there
+                else:
+                    self._prev = self._sent.get(sent.after) if sent.after is not None else None
                 late = isinstance(error, dict) and isinstance(error.get("late"), (int, float))
                 if late:
                     assert error is not None
@@ -282,7 +288,7 @@ class Tracker:
                 generation, session, deadline = self._generation, self._session, self._last_put + self._deadman
                 if generation != self._seen_generation:  # a session began or ended: its goal and trajectory forgotten
                     self._seen_generation = generation
-                    self._goal = self._branch = self._jog = self._prev = None
+                    self._goal = self._branch = self._jog = self._prev = self._restart = None
                     self._sent.clear()
                     self._speed = 1.0
                     self._goals = []
@@ -317,29 +323,35 @@ class Tracker:
             return
         now = time.monotonic()
         prev = self._prev
-        dt = 1.0 / RATE_HZ
+        rate = self.rate_hz
+        dt = 1.0 / rate
         splice: dict[str, Any] | None = None
         there = prev is not None and not prev.braked and np.array_equal(prev.goal, goal)
         if prev is not None and now - prev.t0 < prev.trajectory.duration:
             if there:
                 return  # (on its way to the goal, where it rests: nothing to add)
             traj = prev.trajectory
-            k = min(math.ceil((now - prev.t0 + self.lead) * RATE_HZ - 1e-9), len(traj.times) - 1)
+            k = min(math.ceil((now - prev.t0 + self.lead) * rate - 1e-9), len(traj.times) - 1)
             start = JointState(traj.position[k], traj.velocity[k], traj.acceleration[k])
             splice, t0 = {"after": prev.id, "at": k * dt}, prev.t0 + k * dt
-        elif prev is not None:
+        elif prev is not None:  # (it has ended, by this clock: it may still settle at the adapter)
             if there:
                 return  # (resting on the goal)
-            start, t0 = JointState.at_rest(prev.trajectory.position[-1].copy()), now
+            traj = prev.trajectory
+            start = JointState.at_rest(traj.position[-1].copy())
+            splice, t0 = {"after": prev.id, "at": traj.duration}, now  # (at its end: the adapter starts it on arrival)
         else:
             known = self._current()
+            restart, self._restart = self._restart, None
+            if restart is not None and not restart.moving:
+                known = Known(restart, "adapter", False)
             if known.moving:  # a stream starts from rest: looked at again shortly
                 self.say(
                     "waiting", "moving", f"{self.arm.name} is moving: the stream starts once it rests", session=session
                 )
                 with self._cv:
                     if self._pending is None and self._generation == generation:
-                        self._pending = put or TrackPut(session, -1, "none", goal)
+                        self._pending = TrackPut(session, -1, "none", goal)  # (the goal kept: aimed once)
                         self._next_cycle = now + WAIT_RETRY
                 return
             start, t0 = JointState.at_rest(self.arm.limits.clip(known.state.position)), now
@@ -358,18 +370,34 @@ class Tracker:
             goal,
             horizon=deadline - t0,
             speed=self._speed,
-            rate_hz=RATE_HZ,
+            rate_hz=rate,
             reference=pace,
             cruise=cruise,
         )
-        msg = step.trajectory.to_dict()
+        traj = step.trajectory
         ident = uuid.uuid4().hex
-        msg.update({"id": ident, "kind": "move", "track": session})
+        # (the samples' positions: what an adapter runs and checks; its velocities and the rest it
+        # does not trust, and a third of the bytes to parse, a hundred times a second)
+        msg: dict[str, Any] = {
+            "robot": self.arm.name,
+            "id": ident,
+            "kind": "move",
+            "path": "track",
+            "track": session,
+            "rate_hz": traj.rate_hz,
+            "times": traj.times.tolist(),
+            "position": traj.position.tolist(),
+            "seq": put.seq if put is not None and put.mode != "none" else None,
+        }
         if splice is not None:
             msg["splice"] = splice
         with self._cv:
             if self._generation != generation:
                 return  # (ended meanwhile: a stop is under way)
+            if self._prev is not prev:  # (an adapter's refusal went back meanwhile: planned again at once)
+                if self._pending is None:
+                    self._pending = TrackPut(session, -1, "none", goal)  # (the goal kept: aimed once)
+                return
             self._publish(msg)
             self._prev = _Sent(
                 step.trajectory, t0, ident, step.braked, goal.copy(), prev.id if splice and prev else None
