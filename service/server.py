@@ -521,6 +521,7 @@ class Service:
                         encoding=JSON,
                     ),
                     current=lambda: self.book.current(arm),
+                    adapters=lambda: self._adapter_count(arm),
                 )
                 self._trackers[arm.name] = tracker
         return tracker

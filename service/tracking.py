@@ -99,12 +99,14 @@ class Tracker:
         publish_gripper: Publish,
         event: Publish,
         current: Callable[[], Known],
+        adapters: Callable[[], int] = lambda: 1,
     ) -> None:
         self.arm = arm
         self._publish = publish
         self._publish_gripper = publish_gripper
         self._event = event
         self._current = current
+        self._adapters = adapters
         self._cv = threading.Condition()
         self._closed = False
         self._session: str | None = None
@@ -321,6 +323,11 @@ class Tracker:
         goal = self._goal
         if goal is None or session is None:
             return
+        if self._adapters() == 0:  # (nothing would run it: said, and planned afresh once one is back)
+            self.say("waiting", "no_adapter", f"no adapter drives {self.arm.name}: nothing is sent", session=session)
+            with self._cv:
+                self._prev = None
+            return
         now = time.monotonic()
         prev = self._prev
         rate = self.rate_hz
@@ -434,7 +441,8 @@ class Tracker:
             return None, 0.0, now
         x = t - t[-1]
         degree = 2 if len(goals) >= 3 else 1
-        fit = np.polynomial.polynomial.polyfit(x, q, degree)  # (rows: the coefficients of x^0, x^1, x^2)
+        X = np.vander(x, degree + 1, increasing=True)  # (columns: 1, x, x^2)
+        fit = np.linalg.solve(X.T @ X, X.T @ q)  # (least squares by the normal equations: a 3x3, microseconds)
         p, v = fit[0], fit[1]
         a = 2.0 * fit[2] if degree == 2 else np.zeros_like(p)
         if not np.any(np.abs(v) > 1e-6):

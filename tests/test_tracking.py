@@ -590,3 +590,78 @@ def test_the_example_and_the_protocols_snippet_draw_their_circles(router: str, s
 
 
 DOC = (ROOT / "docs" / "protocol.md").read_text()
+
+
+# -- the service or the adapter gone mid-stream ---------------------------------------------------
+
+
+def test_a_service_killed_mid_stream_leaves_the_arm_braking_on_its_own(router: str, tmp_path: Any) -> None:
+    """`armd serve` killed (SIGKILL) while a stream moves the arm: the adapter, which needs
+    nothing from it, runs the last trajectory it has, which ends at rest where the deadman ran
+    out: the arm rests within the deadman and a stop's braking, every limit kept."""
+    import signal
+    import subprocess
+    import sys
+
+    session = zenoh.open(network_config(connect=[router]))
+    rec = Recorder(session, robots.load(ARM), "kill")
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", "serve", "--connect", router, "--prefix", "kill"],
+        cwd=ROOT,
+        stdout=subprocess.DEVNULL,
+        stderr=(tmp_path / "serve.log").open("w"),
+    )
+    try:
+        with ArmClient(router, prefix="kill", timeout=60.0) as armd:
+            armd.robots()  # (serving)
+            arm = robots.load(ARM)
+            q0 = np.array(arm.neutral)
+            with armd.track(ARM) as t:
+                keep(t, 0.5, joints=q0.tolist())
+                far = q0 + np.array([1.2, 0.0, 0.0, 0.0, 0.0])
+                keep(t, 0.3, joints=far.tolist(), speed=0.2)  # (on its way: seconds from there, at a fifth)
+                serve.send_signal(signal.SIGKILL)
+                killed = time.monotonic()
+                serve.wait(10)
+                keep(t, 0.3, joints=far.tolist(), speed=0.2)  # (puts nobody hears)
+            rest = resting(rec, settle=0.3)
+        with rec.lock:
+            moved = [t_ for (t_, q), (_, q2) in zip(rec.times, rec.times[1:], strict=False) if np.any(q != q2)]
+        brake = planning.plan_stop(arm, JointState(q0, arm.limits.velocity * np.eye(arm.nq)[0], np.zeros(arm.nq)))
+        assert moved[-1] - killed < 0.25 + brake.duration + 0.05  # the deadman, a stop's braking (and the way)
+        assert abs(rest[0] - far[0]) > 0.2  # braked, short of the goal
+        within_limits(arm, rec.commanded(), 1 / RATE)
+    finally:
+        if serve.poll() is None:
+            serve.kill()
+            serve.wait(10)
+        rec.adapter.close()
+        session.close()
+
+
+def test_an_adapter_gone_mid_stream_is_said_and_a_new_one_takes_the_stream_from_where_it_is(
+    armd: ArmClient, served: tuple[str, Service]
+) -> None:
+    router, service = served
+    arm = robots.load(ARM)
+    q0 = np.array(arm.neutral)
+    session = zenoh.open(network_config(connect=[router]))
+    first = Recorder(session, arm, "tr")
+    wait_for(lambda: service._adapter_count(service.arms[ARM]) == 1, 10, "the adapter")
+    with armd.track(ARM, deadman=1.0) as t:
+        keep(t, 0.3, joints=q0.tolist())
+        keep(t, 0.2, joints=(q0 + 0.5).tolist())
+        first.adapter.close()  # (the adapter gone mid-move: the simulated arm stays where it was)
+        wait_for(lambda: service._adapter_count(service.arms[ARM]) == 0, 10, "the adapter gone")
+        keep(t, 0.3, joints=(q0 + 0.5).tolist())
+        assert t.wait_for("waiting") is not None  # no adapter: said, nothing sent
+        second = Recorder(session, arm, "tr")  # a new one, where the arm is (its neutral: the sim starts there)
+        try:
+            wait_for(lambda: service._adapter_count(service.arms[ARM]) == 1, 10, "the new adapter")
+            time.sleep(0.2)
+            keep(t, 1.5, joints=(q0 + 0.5).tolist())
+            assert np.allclose(resting(second), q0 + 0.5, atol=1e-6)  # the stream goes on, from where the arm is
+            within_limits(arm, second.commanded(), 1 / RATE)
+        finally:
+            second.adapter.close()
+    session.close()
