@@ -20,7 +20,10 @@ own. Per arm (``--arms``, default ``insomniac`` on the simulated arm and ``so101
 * **the peer**: a bare Python loop of Ruckig's online generation (``Ruckig.update``) for the
   arm's joints at 100 Hz with a new target every cycle, its CPU per cycle: the floor.
 
-Run: ``.venv/bin/python bench/track.py [--arms insomniac,so101] [--seconds 6] [--steps 40]``.
+``--flood``: the latency again while a guest keeps 80 IK batches of 10,000 targets in flight
+(bench/flood.py's flood): the operator's stream keeps its p99?
+
+Run: ``.venv/bin/python bench/track.py [--arms insomniac,so101] [--seconds 6] [--steps 40] [--flood]``.
 Prints a Markdown table (medians, p99, ratios); docs/benchmarks.md has a run.
 """
 
@@ -47,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 from armd import planning, robots  # noqa: E402
 from armd.adapters.sim import SimAdapter  # noqa: E402
 from armd.adapters.trajectory_message import Command  # noqa: E402
-from armd.clients import ArmClient  # noqa: E402
+from armd.clients import ArmClient, NoReply  # noqa: E402
 from armd.service.zconfig import free_endpoint, network_config  # noqa: E402
 
 RATE = 100.0  # [Hz] the client's puts
@@ -239,6 +242,7 @@ def one_arm(name: str, endpoint: str, service: subprocess.Popen[bytes], args: ar
             paced(1.5, lambda _: t.send(joints=q0.tolist()))
             lat = latency(t, stamps, q0, args.steps, feetech)
             paced(0.5, lambda _: t.send(joints=q0.tolist()))
+
         time.sleep(0.5)
         idle0 = cpu_seconds(service.pid)
         time.sleep(args.seconds)
@@ -275,6 +279,25 @@ def one_arm(name: str, endpoint: str, service: subprocess.Popen[bytes], args: ar
                     last_move, moving_at = time.monotonic(), now
         statuses = [e.status for e in t.events]
         joined = stamps.joined()
+        flooded: list[float] = []
+        if args.flood:  # a guest's 80 IK batches of 10,000 targets in flight all the while (bench/flood.py)
+            flood = subprocess.Popen(
+                [
+                    *(sys.executable, str(ROOT / "bench" / "flood.py"), "--worker", "flood", "--endpoint", endpoint),
+                    *("--seconds", str(args.steps * 0.5 + 10), "--batches", "80", "--targets", "10000"),
+                ],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                text=True,
+            )
+            try:
+                assert flood.stdout is not None and flood.stdout.readline().strip() == "ready"
+                with client.track(name, session=f"bench-flood-{name}") as t:
+                    paced(2.0, lambda _: t.send(joints=q0.tolist()))
+                    flooded = latency(t, stamps, q0, args.steps, feetech)
+            finally:
+                flood.kill()
+                flood.wait(10)
     session.close()
     dt = 1.0 / 200.0
     v = np.diff(joined, axis=0) / dt
@@ -292,6 +315,7 @@ def one_arm(name: str, endpoint: str, service: subprocess.Popen[bytes], args: ar
     return {
         "arm": name + (" (Feetech bus, emulated)" if feetech else " (simulated)"),
         "latency": lat,
+        "flooded": flooded,
         "v": float(np.max(np.abs(v) / lim.velocity)),
         "a": float(np.max(np.abs(a) / lim.acceleration)),
         "j": float(np.max(np.abs(j) / lim.jerk)),
@@ -310,6 +334,7 @@ def main() -> None:
     parser.add_argument("--arms", default="insomniac,so101")
     parser.add_argument("--seconds", type=float, default=6.0)
     parser.add_argument("--steps", type=int, default=40)
+    parser.add_argument("--flood", action="store_true", help="the latency again under a guest's flood of IK batches")
     args = parser.parse_args()
     endpoint = free_endpoint()
     router = zenoh.open(network_config(listen=[endpoint], mode="router"))
@@ -320,7 +345,12 @@ def main() -> None:
     rows = []
     try:
         with ArmClient(endpoint, timeout=60.0) as c:
-            c.robots()  # (the service warmed up and serving)
+            for _ in range(120):  # (the service warmed up and serving: seconds)
+                try:
+                    c.robots()
+                    break
+                except NoReply:
+                    time.sleep(0.5)
         for name in args.arms.split(","):
             rows.append(one_arm(name, endpoint, service, args))
     finally:
@@ -341,6 +371,13 @@ def main() -> None:
             f"| {r['cpu']:.1f} | {r['cycle_us']:.0f} / {r['peer_us']:.0f} ({r['cycle_us'] / r['peer_us']:.0f}x) "
             f"| {r['rest']:.2f} / {r['rest_bar']:.2f} |"
         )
+    for r in rows:
+        if r["flooded"]:
+            f = np.array(r["flooded"])
+            print(
+                f"| {r['arm']}, under a flood of IK batches | {np.median(f):.1f} / {np.percentile(f, 99):.1f} "
+                f"(n={len(f)}) | | | | | |"
+            )
     print()
     print("events said:", {r["arm"]: r["events"] for r in rows})
 
