@@ -665,3 +665,66 @@ def test_an_adapter_gone_mid_stream_is_said_and_a_new_one_takes_the_stream_from_
         finally:
             second.adapter.close()
     session.close()
+
+
+# -- every field fuzzed: refused whole, never anything else -----------------------------------------
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_VALUES = st.one_of(
+    st.none(),
+    st.booleans(),
+    st.integers(min_value=-(2**70), max_value=2**70),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=80),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=12),
+    st.lists(st.integers(), max_size=8),
+    st.dictionaries(st.text(max_size=8), st.integers(), max_size=3),
+)
+_FIELDS = st.sampled_from(
+    (
+        *("session", "seq", "joints", "target", "velocity", "approach", "roll", "orientation", "pitch_rate"),
+        *("roll_rate", "speed", "gripper", "deadman", "time", "protocol", "dance", ""),
+    )
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    base=st.sampled_from(
+        [
+            {"session": "s", "seq": 1, "joints": [0.0, 1.5, -1.5, 0.0, 0.0]},
+            {"session": "s", "seq": 1, "target": [0.25, 0.0, 0.1], "approach": "parallel"},
+            {"session": "s", "seq": 1, "velocity": [0.0, 0.0, 0.01], "pitch_rate": 0.1},
+        ]
+    ),
+    changes=st.dictionaries(_FIELDS, _VALUES, min_size=1, max_size=3),
+)
+def test_a_fuzzed_put_is_a_track_put_or_a_bad_request_and_nothing_else(
+    base: dict[str, Any], changes: dict[str, Any]
+) -> None:
+    """Any field, any value (wrong types, NaN, 1e308, 2^70, huge lists, unknown names): the put
+    is read whole into a :class:`TrackPut` within its bounds, or refused with a
+    :class:`BadRequest` naming a field; no other exception, nothing half-read."""
+    import json
+
+    from armd.service.track_message import MAX_SEQ, TrackPut, parse
+
+    arm = robots.load(ARM)
+    put = {**base, **changes}
+    try:
+        payload = json.dumps(put, allow_nan=True).encode()
+    except (ValueError, OverflowError):
+        return
+    try:
+        got = parse(arm, payload)
+    except BadRequest as e:
+        assert e.message and e.fields.get("field") is not None
+        return
+    assert isinstance(got, TrackPut)
+    assert got.mode in ("joints", "target", "velocity") and 0 <= got.seq <= MAX_SEQ
+    assert np.all(np.isfinite(got.value)) and len(got.value) == (arm.nq if got.mode == "joints" else 3)
+    assert got.speed is None or 0.0 < got.speed <= 1.0
+    assert got.gripper is None or 0.0 <= got.gripper <= 1.0
+    assert got.deadman is None or 0.05 <= got.deadman <= 1.0
