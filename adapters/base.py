@@ -184,7 +184,6 @@ class Adapter(ABC):
         self._stopped_streams: OrderedDict[str, None] = OrderedDict()  # streams an estop ended: none of theirs runs
         self._wake = threading.Event()  # (the control loop looks again at once: a trajectory came)
         self._stops = 0  # estops so far
-        self._raised: set[int] = set()  # Zenoh's threads put at real-time priority
         self._intake: queue.Queue[tuple[bytes, int] | None] = queue.Queue(INTAKE)
         self._intake_thread = threading.Thread(
             target=self._take_in, name=f"{self.kind}-intake-{robot.name}", daemon=True
@@ -325,8 +324,9 @@ class Adapter(ABC):
         Python's lock; done on Zenoh's thread, of ordinary priority, a busy machine preempts it
         holding the lock, and the control loop, however urgent, waits: the SSC-32's lines then came
         65 ms late, the board stopped dead at speed (130x its acceleration limit, measured beside two
-        busy processes). The intake thread runs at the loop's real-time priority, one below."""
-        self._raise_this_thread()
+        busy processes). The intake thread runs at the loop's real-time priority, one below. (Zenoh's
+        thread is left as it is: in `armd serve --sim` it also answers the service's requests, which
+        must never run ahead of every process on the machine.)"""
         try:
             check_size(len(sample.payload))  # (before it is copied)
         except ArmdError as e:
@@ -344,15 +344,6 @@ class Adapter(ABC):
                 **_claimed_id(payload),
                 reason=f"{INTAKE} trajectories wait to be checked already: this one is dropped",
             )
-
-    def _raise_this_thread(self) -> None:
-        """Zenoh's thread that hands over trajectories (a hundred a second from a stream), at
-        real-time priority too, once: each hand-over takes Python's lock, and an ordinary thread
-        preempted holding it (a busy machine) holds up the control loop, whatever its priority."""
-        ident = threading.get_ident()
-        if ident not in self._raised:
-            self._raised.add(ident)
-            _prioritise_this_thread(self.robot.name, LOOP_PRIORITY - 2, "Zenoh's thread that hands trajectories over")
 
     def _take_in(self) -> None:
         """The intake thread: each trajectory checked and taken, in the order they came."""
