@@ -23,7 +23,7 @@ EXTRAS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import calls, daemons, offline, teach, tools  # (here: `armd estop` never loads them)
+    from . import calls, daemons, offline, teach, teleop, tools  # (here: `armd estop` never loads them)
 
     parser = argparse.ArgumentParser(prog="armd", description="IK and motion service for small robot arms")
     parser.add_argument(
@@ -41,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     calls.register(sub, log_args)
     tools.register(sub, log_args)
     teach.register(sub, log_args)
+    teleop.register(sub, log_args)
     return parser
 
 

@@ -294,6 +294,7 @@ class Tracker:
                 if generation != self._seen_generation:  # a session began or ended: its goal and trajectory forgotten
                     self._seen_generation = generation
                     self._goal = self._branch = self._jog = self._prev = self._restart = None
+                    self._gripper = None  # (a new session's gripper is sent, whatever the last one's was)
                     self._sent.clear()
                     self._speed = 1.0
                     self._goals = []
