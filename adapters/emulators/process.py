@@ -23,9 +23,7 @@ from typing import Any
 
 from .pty import PtyEmulator
 
-# SCHED_FIFO priority of the emulator's process (1-99; the kernel's threads use 50): above the adapters'
-# control loops (20) and their intake (19, 18): a board's own CPU is not the adapter's
-REALTIME_PRIORITY = 30
+REALTIME_PRIORITY = 10  # SCHED_FIFO priority of the emulator's process (1-99; the kernel's threads use 50)
 
 
 def _prioritise() -> None:
