@@ -149,13 +149,19 @@ def stream_message(traj: planning.Trajectory, ident: str, track: str = "t1", **m
     return orjson.dumps(msg)
 
 
+def started(arm: robots.Robot, session: zenoh.Session, events: list[dict[str, Any]], q0: np.ndarray) -> Any:
+    """A stream's first trajectory (0.6 rad on every joint, braked at 0.5 s), put and started."""
+    first = track_step(arm, JointState.at_rest(q0), q0 + 0.6, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
+    session.put(f"s/{ARM}/trajectory", stream_message(first, "one"))
+    wait_for(lambda: any(e["event"] == "started" and e.get("id") == "one" for e in events), 5, "the first to start")
+    return first
+
+
 def test_a_splice_takes_over_at_its_sample_and_a_wrong_one_is_refused(sim: Any) -> None:
     adapter, session, events = sim
     arm = adapter.robot
     q0 = np.array(arm.neutral)
-    first = track_step(arm, JointState.at_rest(q0), q0 + 0.6, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
-    session.put(f"s/{ARM}/trajectory", stream_message(first, "one"))
-    wait_for(lambda: any(e["event"] == "started" and e.get("id") == "one" for e in events), 5, "the first to start")
+    first = started(arm, session, events, q0)
     k = 60  # 0.3 s in: ahead of the adapter
     at = JointState(first.position[k], first.velocity[k], first.acceleration[k])
     second = track_step(arm, at, q0 - 0.3, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
@@ -173,9 +179,7 @@ def test_a_splice_that_would_jump_or_comes_late_is_refused(sim: Any) -> None:
     adapter, session, events = sim
     arm = adapter.robot
     q0 = np.array(arm.neutral)
-    first = track_step(arm, JointState.at_rest(q0), q0 + 0.6, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
-    session.put(f"s/{ARM}/trajectory", stream_message(first, "one"))
-    wait_for(lambda: any(e["event"] == "started" and e.get("id") == "one" for e in events), 5, "the first to start")
+    first = started(arm, session, events, q0)
     k = 80
     at = JointState(first.position[k], first.velocity[k], first.acceleration[k])
     second = track_step(arm, at, q0, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
@@ -221,9 +225,7 @@ def test_after_an_estop_nothing_of_its_stream_runs(sim: Any) -> None:
     adapter, session, events = sim
     arm = adapter.robot
     q0 = np.array(arm.neutral)
-    first = track_step(arm, JointState.at_rest(q0), q0 + 0.6, horizon=0.5, speed=1.0, rate_hz=RATE).trajectory
-    session.put(f"s/{ARM}/trajectory", stream_message(first, "one"))
-    wait_for(lambda: any(e["event"] == "started" and e.get("id") == "one" for e in events), 5, "the first to start")
+    started(arm, session, events, q0)
     session.put(f"s/{ARM}/estop", b"{}")
     wait_for(lambda: any(e["event"] == "done" and e.get("id") != "one" for e in events), 5, "the stop to end")
     rest = adapter.position.copy()

@@ -21,6 +21,7 @@ from armd.adapters.emulators.process import EmulatorProcess
 from armd.clients import ArmClient
 from tests.conftest import adapter_process, collect, wait_for
 from tests.test_adapter_ssc32 import running_adapter
+from tests.test_tracking import keep as hold
 
 pytestmark = pytest.mark.slow  # (seconds: processes, emulated boards)
 
@@ -50,15 +51,6 @@ def circle(track: Any, centre: np.ndarray, radius: float, speed: float, seconds:
     for k in range(int(seconds * 100)):
         track.send(target=on_circle(centre, radius, w * k / 100).tolist())
         time.sleep(max(0.0, t0 + (k + 1) / 100 - time.monotonic()))
-
-
-def hold(track: Any, seconds: float, **put: Any) -> None:
-    t0 = time.monotonic()
-    k = 0
-    while time.monotonic() - t0 < seconds:
-        track.send(**put)
-        k += 1
-        time.sleep(max(0.0, t0 + k / 100 - time.monotonic()))
 
 
 def test_the_ssc32_refuses_a_stream_and_nothing_moves(
