@@ -112,6 +112,8 @@ FRAME = 0.02  # [s] the board outputs a servo's pulse every 20 ms (the guide); Q
 MODEL_TOL = 5.0  # [us] how far the model may be from the board at rest: a board adopted from a QP (its middle)
 STILL = 0.1  # [s] a board whose QP answers stay the same this long (after the adapter's moves end) stands still
 FAULT_QUERY_PERIOD = 0.05  # [s] how often the board is asked while faulted or followed (its answers: the way back)
+LINE_GAP_SMOOTHING = 0.2  # how much of each new spacing of lines the adapter's estimate takes
+CHORD_MIN = 1e-3  # [s] a timed group's speed on a piece just begun: its chord over this long
 ARRIVAL_TOL = 2e-4  # [s] how far from when a move is aimed for the board may have it (else it is aimed again)
 MAX_SLIP = 1.5  # periods: the most the plan's clock advances between two moves (later: the plan waits)
 RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
@@ -221,6 +223,7 @@ class SSC32Adapter(SerialAdapter):
         self._joint_group = np.array([group_of[int(np.flatnonzero(amap.M[:, j])[0])] for j in range(robot.nq)])
         self._timed_joint = np.array(self._timed)[self._joint_group]
         self._timed_servo = np.array([self._timed[group_of[r]] for r in range(len(self.channels))])
+        self._servo_joint = np.array([int(np.flatnonzero(amap.M[r])[0]) for r in range(len(self.channels))])
         # the board's motion, as the model has it: per joint, linear from _p0 at _since to _p1 at _until, then held
         now = time.monotonic()
         self._p0 = self._p1 = np.array(robot.neutral, dtype=float)
@@ -233,6 +236,7 @@ class SSC32Adapter(SerialAdapter):
         )
         self._tau = 0.0  # [s] the plan's time the running move was aimed from
         self._rhythm = now  # [s] the earliest the next move of a trajectory should reach the board
+        self._line_gap = 0.0  # [s] how far apart the lines of a trajectory have reached the board lately
         self._settled = True  # the board heads for the trajectory's end slowly enough to stop there
         self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
         self._seen_at = now
@@ -475,14 +479,41 @@ class SSC32Adapter(SerialAdapter):
 
     def _at(self, t: float | FloatArray) -> tuple[FloatArray, FloatArray]:
         """Where the board is at time ``t`` [s] (per joint, if an array), and how fast it moves
-        [rad/s]: each joint on the last piece it had started by then."""
-        p, v = _on_piece(self._p0, self._since, self._p1, self._until, t)
+        [rad/s]: each joint on the last piece it had started by then (:meth:`_on`)."""
+        p, v = self._on(self._p0, self._since, self._p1, self._until, t)
         early = t < self._since  # (a joint whose command of the last line has not arrived by then)
         if np.any(early) and len(self._pieces) > 1:
             p0, t0, p1, t1 = self._pieces[-2]
-            pe, ve = _on_piece(p0, t0, p1, t1, t)
+            pe, ve = self._on(p0, t0, p1, t1, t)
             p, v = np.where(early, pe, p), np.where(early, ve, v)
         return p, v
+
+    def _on(
+        self, p0: FloatArray, t0: FloatArray, p1: FloatArray, t1: FloatArray, t: float | FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """Per joint, where the board has it at ``t`` on the piece from ``p0`` at ``t0`` to ``p1``
+        at ``t1`` (held after), and its speed. The board moves each servo linearly in pulses: a
+        joint behind a linkage (a timed group's: desk4's minor) then moves along a curve, and
+        its speed is its chord since the piece began (what the board's motion shows between
+        two lines; its speed at the start, for a piece just begun), not the piece's average."""
+        p, v = _on_piece(p0, t0, p1, t1, t)
+        if not self._timed_joint.any():
+            return p, v
+        amap = self.robot.actuators
+        tt = np.broadcast_to(np.asarray(t, dtype=float), p0.shape)
+        span = t1 - t0
+
+        def board(at: FloatArray) -> FloatArray:
+            s = np.where(span > 0.0, np.clip((at - t0) / np.where(span > 0.0, span, 1.0), 0.0, 1.0), 1.0)
+            c0, c1 = amap.command_values(p0), amap.command_values(p1)
+            return amap.joints_from_commands(c0 + s[self._servo_joint] * (c1 - c0), tol=np.inf)
+
+        h = np.maximum(np.minimum(tt, t1) - t0, CHORD_MIN)
+        exact = board(tt)
+        chord = (board(t0 + h) - p0) / h
+        moving = (span > 0.0) & (tt < t1)
+        timed = self._timed_joint
+        return np.where(timed, exact, p), np.where(timed, np.where(moving, chord, 0.0), v)
 
     def _was_at(self, t: float) -> FloatArray:
         """Where the board was at time ``t`` [s], which may be a few pieces ago."""
@@ -570,6 +601,9 @@ class SSC32Adapter(SerialAdapter):
         self._p0, self._since, self._p1, self._until = p0, t0, target, t0 + lasts[self._joint_group]
         self._pieces.append((self._p0, self._since, self._p1, self._until))
         self._tau = tau
+        if not first and float(arrivals[-1]) - self._t_line < 4 * period:  # (a trajectory's lines, not a pause)
+            gap = float(arrivals[-1]) - self._t_line
+            self._line_gap += LINE_GAP_SMOOTHING * (gap - self._line_gap)
         self._t_line, self._t_end = float(arrivals[-1]), float(arrivals[-1]) + span
         self._rhythm = self._t_line + period  # the next line arrives no sooner: no piece shorter than a period
         self._settled = final
@@ -620,7 +654,7 @@ class SSC32Adapter(SerialAdapter):
         for s in np.unique(shift):
             at = shift == s
             ahead[at] = cmd.sample_at(tau + float(s) + span)[0][at]
-        v = np.clip((ahead - p0) / span, v0 - c, v0 + c)
+        v = np.clip(self._stops_at_end(cmd, tau, p0, (ahead - p0) / span, goal, c, period), v0 - c, v0 + c)
         if cmd.kind == "stop":  # a stop never reverses a joint
             v = np.where(v * v0 < 0.0, 0.0, v)
         v = np.clip(v, rounding - self._vmax, self._vmax - rounding)
@@ -628,6 +662,27 @@ class SSC32Adapter(SerialAdapter):
         x = self._inside(p0, self._target(p0, v, span, period))
         # a timed group's speed is its way over T; a servo with its own speed S keeps it, whatever its target
         return x, np.where(self._timed_joint, (x - p0) / span, v), tau, False
+
+    def _stops_at_end(
+        self, cmd: Command, tau: float, p0: FloatArray, v: FloatArray, goal: FloatArray, c: FloatArray, period: float
+    ) -> FloatArray:
+        """``v``, or slower where a joint heading for the trajectory's end (its plan from
+        ``tau`` on goes only that way) would not stop there: at that speed until the next line,
+        then slower by ``c`` [rad/s] a line (the most a line may change it), the lines as far
+        apart as they have come lately. A board behind the plan (a joint behind a linkage aims
+        within a lower speed than its limit, :meth:`_limits_for`) catches up only as far as it
+        can still stop at the end; without this it came in at speed as the plan slowed, and ran
+        0.2 rad past desk4's goal, onto the minor arm's limit, braking there at twice its
+        acceleration limit."""
+        d = goal - p0
+        k = min(int(tau * cmd.rate_hz), len(cmd.times) - 1)
+        rest = np.diff(cmd.position[k:], axis=0) * np.sign(d)
+        one_way = np.all(rest >= -1e-12, axis=0) if len(rest) else np.ones(len(d), dtype=bool)
+        g = max(period, self._line_gap)
+        a = np.maximum(c, 1e-9) / g  # [rad/s^2] the braking the lines can give
+        # the way from speed u: u g (this line), then u g (u/c + 1)/2 over the lines that brake it
+        reach = a * (np.sqrt((1.5 * g) ** 2 + 2.0 * np.abs(d) / a) - 1.5 * g)
+        return np.where(one_way & (v * d > 0.0), np.sign(v) * np.minimum(np.abs(v), reach), v)
 
     def _stop_point(self, x: FloatArray, v: FloatArray, period: float) -> FloatArray:
         """Where a joint at ``x`` moving at ``v`` [rad/s] stops at the latest: a period more at
@@ -663,8 +718,21 @@ class SSC32Adapter(SerialAdapter):
         still stop from there inside the limits (:meth:`_stop_point`). A board whose adapter
         stalls runs on to its targets and stops there; running on less than a span, it is then
         still on a motion the limits allow. A timed group's target is its speed's (a span on:
-        its speed is its way over T)."""
+        its speed is its way over T, and its target, for a joint behind a linkage, where its
+        pulses run on to in ``span`` once they bring the joint ``v`` a period on: the board draws
+        that period's chord at ``v`` exactly, the speed that was aimed, curve or not)."""
         full = p0 + v * span
+        if self._timed_joint.any():
+            amap = self.robot.actuators
+            c0 = amap.command_values(p0)
+            c1 = amap.command_values(np.where(self._timed_joint, p0 + v * period, p0))
+            try:
+                run = amap.joints_from_commands(
+                    np.where(self._timed_servo, c0 + (c1 - c0) * (span / period), c0), tol=np.inf
+                )
+                full = np.where(self._timed_joint, run, full)
+            except (ActuatorMapError, BadRequest):  # (pulses the linkage cannot take: the joints' straight way)
+                pass
         if self._within(self._stop_point(full, v, period)):
             return full
         near = np.where(self._timed_joint, full, p0 + v * min(period + self.lead, span))
