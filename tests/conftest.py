@@ -157,6 +157,28 @@ def _adapter_state_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("ARMD_STATE_DIR", str(tmp_path / "armd-state"))
 
 
+@pytest.fixture(autouse=True)
+def _no_adapter_left(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
+    """Every adapter a test made is closed when it ends, failed or not: one left running (its
+    thread, its port, its Zenoh entities) once held pytest at exit after a failing test."""
+    from armd.adapters.base import Adapter
+
+    made: list[Adapter] = []
+    init = Adapter.__init__
+
+    def recorded(self: Adapter, *args: object, **kwargs: object) -> None:
+        made.append(self)
+        init(self, *args, **kwargs)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(Adapter, "__init__", recorded)
+    yield
+    for adapter in made:
+        stop = getattr(adapter, "_stop", None)
+        if stop is not None and not stop.is_set() and hasattr(adapter, "_thread"):
+            with contextlib.suppress(Exception):
+                adapter.close()
+
+
 # -- TLS: a certificate authority made at test time -------------------------------------------------
 
 import subprocess  # noqa: E402

@@ -158,16 +158,19 @@ def test_adapter_killed_mid_move_then_no_adapter(client: ArmClient, service: obj
     session = zenoh.open(network_config(connect=[router]))
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(session, arm, emu.port)
-        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
-        client.move("sg5ut", [0.6, 1.0, -0.3, -0.4], speed=0.3)
-        time.sleep(0.2)
-        session.close()  # the adapter's process goes away: its session (and token) with it
-        wait_for(lambda: service._adapter_count(arm) == 0, timeout=5, what="the token gone")  # type: ignore[attr-defined]
-        with pytest.raises(ServiceError) as e:
-            client.move("sg5ut", [0.2, 1.2, -0.6, -0.6])
-        assert e.value.code == "no_adapter"
-        adapter._stop.set()  # the thread of the dead process
-        adapter.shutdown()
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            client.move("sg5ut", [0.6, 1.0, -0.3, -0.4], speed=0.3)
+            time.sleep(0.2)
+            session.close()  # the adapter's process goes away: its session (and token) with it
+            wait_for(lambda: service._adapter_count(arm) == 0, timeout=5, what="the token gone")  # type: ignore[attr-defined]
+            with pytest.raises(ServiceError) as e:
+                client.move("sg5ut", [0.2, 1.2, -0.6, -0.6])
+            assert e.value.code == "no_adapter"
+        finally:  # (failed or not: the thread of the dead process, and its session, go)
+            adapter._stop.set()
+            adapter.shutdown()
+            session.close()
 
 
 def test_sg5ut_mirrored_shoulder_pair_and_gripper_channel(
@@ -538,9 +541,11 @@ def test_a_restarted_adapter_adopts_the_board_and_a_powered_board_gets_the_last_
     q1 = np.array([0.4, 1.3, -1.2, -0.3, 0.2])
     with SSC32Emulator() as emu:
         adapter = SSC32Adapter(adapter_session, arm, emu.port)
-        wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
-        client.move("insomniac", q1.tolist(), wait=True, wait_timeout=15)
-        adapter.close()  # (it keeps the last pose in ARMD_STATE_DIR)
+        try:
+            wait_for(lambda: service._adapter_count(arm) == 1, what="the adapter's token")  # type: ignore[attr-defined]
+            client.move("insomniac", q1.tolist(), wait=True, wait_timeout=15)
+        finally:
+            adapter.close()  # (it keeps the last pose in ARMD_STATE_DIR)
         wait_for(lambda: service._adapter_count(arm) == 0, what="the token gone")  # type: ignore[attr-defined]
         sent = len(arm_moves(arm, emu))
         adapter = SSC32Adapter(adapter_session, arm, emu.port)  # the board kept its pulses: adopted, nothing sent
