@@ -72,11 +72,45 @@ Character counting keeps the bytes of unacknowledged lines within GRBL's 128-byt
 buffer. A move is done when GRBL reports ``Idle`` (a report after the last ``ok``) at the final
 position, to the step.
 
+Tracking streams (``splices``): GRBL follows a stream's trajectories, as spliced, with the same
+``G53 G1`` lines, made of :class:`_Path` (each trajectory up to where the next takes over) from
+the end of the last line sent. What GRBL holds it runs: no command replaces a block in its
+planner, and its planner keeps the distance to stop within what it holds (the newest block is
+planned to exit at rest). So the adapter sends a stream's next line only while GRBL holds less
+of the path, beyond where it is (:class:`_Held`: the lines sent that it has not run to their
+end, GRBL's report projected on them), than ``STREAM_LEAD`` and ``STREAM_KEEP`` times the time
+to brake from the path's speed there (:meth:`_window`): enough not to slow down for the end of
+what it holds, no more. A splice, on the control loop at its time (:meth:`spliced`), makes the
+lines from there on of the new path: GRBL runs the old one to the end of what it held (up to the
+window and a line beyond the splice's time), then a line joins the new one. Where the path turns
+in joint space GRBL runs behind the plan's time (it slows down at each corner, as for a move);
+then it holds nothing beyond the splice's time, and the new trajectory changes its motion from
+there on, late: the path is followed, not cut across (every point of it was checked against the
+arm's world). More than ``STREAM_LAG`` behind, the stream's splices are refused (:meth:`admit`):
+the arm goes on to the end of what it runs, at rest, and the stream starts again from there, on
+time (a lag that grew on a turning path would leave the arm moving for seconds after the puts
+stop). A stream's lines are at most ``STREAM_LINE`` long, chords within
+``STREAM_CHORD_TOL`` of its path (a move's: ``CHORD_TOL``; a stream's path turns all the time,
+and GRBL nearly stops at each corner: the junction changes no axis' speed by more than a tenth
+of what its limit gives in 10 ms), never faster than the path there. A stream ends where its
+last trajectory does (at rest, where the deadman said), to the step.
+
+Not ``$J=`` jogging, though GRBL meant it for this: a jog cancel (``0x85``, or ``!`` while
+jogging) brakes along the blocks as a feed hold does and flushes the planner, back to Idle with
+no reset, but a ``$J=`` line that is not yet in the planner when the cancel is taken (still in
+the receive buffer, or the parser waiting for a free block) is then run, from where the arm
+stopped (protocol.c, motion_control.c; gnea/grbl#95, #423, #837): the arm moves again after the
+stop. Waiting for its ``ok`` first would make the stop late. A feed hold of ``G1`` lines ends in
+``Hold:0``, where GRBL's main loop reads nothing, and the reset there empties every buffer: nothing
+runs after it. And a jog cancel cannot change what is queued either: it only brakes it to rest.
+
 Stops (an estop, a ``stop``, a fault, a new move while one runs): feed hold ``!`` (GRBL
 decelerates along the path at ``$12x``: no joint reverses; the stop is announced with the time
 that takes, GRBL's reported speed over its deceleration along the line it runs), status reports
 until ``Hold:0``, then a soft reset to empty GRBL's buffers (in ``Hold:0`` it keeps the position
-and raises no alarm; in ``Hold:1`` it would raise ALARM:3), welcome, ``G21 G90 G94``. A new move
+and raises no alarm; in ``Hold:1`` it would raise ALARM:3), welcome, ``G21 G90 G94``. Only
+``Hold:0`` ends a hold (GRBL held in Idle goes there at once): a report of ``Idle`` was made
+before the hold was taken, and a line on its way could start GRBL before the reset came. A new move
 runs after that only if it starts within ``START_TOL`` of where the arm was held; else it is
 rejected with the reason (the client plans again from rest). An estop while the position is
 unknown or the adapter faulted still sends ``!``.
@@ -105,6 +139,7 @@ import logging
 import re
 import time
 from collections.abc import Iterable, Iterator, Sequence
+from typing import NamedTuple
 
 import numpy as np
 import serial
@@ -127,9 +162,14 @@ LINE_MAX = 79  # [characters] GRBL's line buffer
 AXES = "XYZABC"
 SEGMENT = 0.06  # [s] the time of one streamed line (a segment of the trajectory), about
 SEGMENT_RANGE = (0.5, 5.0)  # each line's time within these multiples of it (the one where GRBL loses least)
+STREAM_LINE = 0.3  # [s] a tracking stream's lines' longest (what is sent, GRBL runs: a splice waits for it)
+STREAM_LEAD = 0.05  # [s] how much of a stream's path GRBL holds beyond where it is, at the least ...
+STREAM_KEEP = 1.25  # ... and this many times the time it takes to brake from the path's speed there
+STREAM_LAG = 0.5  # [s] how far GRBL may run behind a stream's time before its splices are refused
 STEP_WINDOW = 0.01  # [s] GRBL's step segment (stepper.c's DT_SEGMENT): the time scale of its speed changes
 JUNCTION_SHARE = 0.1  # what a junction may change an axis' speed by, of its acceleration limit x STEP_WINDOW
 CHORD_TOL = 0.002  # [rad] of an actuator: how far a segment's straight line may pass from the trajectory
+STREAM_CHORD_TOL = 0.01  # [rad] ... a stream's (longer lines: fewer corners, where GRBL must slow down)
 CANDIDATE_DT = 0.005  # [s] the times at which a segment may end
 FEED_STEPS = 40  # a segment's speed is tried from its average to twice that, in this many steps
 WELCOME_S = 3.0  # [s] how long GRBL may take to print its welcome (an Arduino boots in ~1 s)
@@ -209,20 +249,32 @@ def describe(line: str) -> str:
     return f"{line} ({meaning})"
 
 
+class _Line(NamedTuple):
+    """A streamed line and where it leaves GRBL: its end [GRBL steps], the time it ends at [s]
+    (of the trajectory it was made of; once sent, a stream's: of the stream), its direction (a
+    unit vector, in degrees) and speed [deg/s]."""
+
+    text: bytes
+    steps: np.ndarray
+    t: float
+    unit: np.ndarray | None
+    feed: float
+
+
 class _Lines:
     """Lines made one at a time as they are taken (from an iterator), the next one made ahead."""
 
-    def __init__(self, lines: Iterable[bytes] = ()) -> None:
+    def __init__(self, lines: Iterable[_Line] = ()) -> None:
         self._lines = iter(lines)
-        self._next: bytes | None = None
+        self._next: _Line | None = None
 
-    def peek(self) -> bytes:
+    def peek(self) -> _Line:
         """The next line (the iterator must not be exhausted: see ``bool``)."""
         if self._next is None:
             self._next = next(self._lines)
         return self._next
 
-    def pop(self) -> bytes:
+    def pop(self) -> _Line:
         line = self.peek()
         self._next = None
         return line
@@ -236,9 +288,92 @@ class _Lines:
         self._lines, self._next = iter(()), None
 
 
+class _Held:
+    """A stream's lines that GRBL was sent and has not run to their end: what it will run
+    whatever comes next (no command replaces a block in its planner). Times are the stream's
+    [s] (:class:`_Path`); positions GRBL's steps."""
+
+    def __init__(self, start: np.ndarray, t: float) -> None:
+        self.lines: collections.deque[_Line] = collections.deque()
+        self.start, self.t0 = start, t  # where the first line held starts, and its time
+        self.at = t  # [s] the stream's time where GRBL is along them
+
+    @property
+    def end(self) -> float:
+        """[s] the stream's time the last line held ends at."""
+        return self.lines[-1].t if self.lines else self.t0
+
+    def advance(self, steps: np.ndarray, spd: np.ndarray, idle: bool) -> float:
+        """Where GRBL is along the lines, from its report (at ``steps``; ``idle``: it said Idle
+        after the last ``ok``, so it ran them all): the lines it ran are let go, and its time
+        along the one it runs [s] is returned (``at``). GRBL runs each line straight: it is on
+        the one nearest where it is (a line that goes back over the one before it: the later),
+        as far along as it projects on it."""
+        if idle:
+            while self.lines:
+                line = self.lines.popleft()
+                self.start, self.t0 = line.steps, line.t
+        if not self.lines:
+            self.at = self.t0
+            return self.at
+        ends = np.array([line.steps for line in self.lines], dtype=float) / spd  # [deg]
+        starts = np.vstack([self.start / spd, ends[:-1]])
+        way = ends - starts
+        length = np.sum(way * way, axis=1)
+        here = steps / spd
+        done = np.clip(np.sum((here - starts) * way, axis=1) / np.maximum(length, 1e-12), 0.0, 1.0)
+        off = np.linalg.norm(starts + done[:, None] * way - here, axis=1)
+        k = int(np.flatnonzero(off <= off.min() + 0.5 / float(np.max(spd)))[-1])  # (within half a step)
+        along = float(done[k])
+        if along >= 1.0 - 1e-9:  # (at its end: on the next one, at its start)
+            k, along = k + 1, 0.0
+        for _ in range(k):
+            line = self.lines.popleft()
+            self.start, self.t0 = line.steps, line.t
+        self.at = self.t0 + along * (self.lines[0].t - self.t0) if self.lines else self.t0
+        return self.at
+
+
+class _Path:
+    """A tracking stream's trajectories as spliced, each up to where the next takes over (the
+    motion the stream commands, with no jump: each starts at the sample it takes over at), kept
+    from where GRBL's next line begins: the path GRBL follows. Its times [s] count from the
+    stream's start (a sample's: its index over the rate), so the lines held keep theirs."""
+
+    def __init__(self, cmd: Command) -> None:
+        self.cmd = cmd  # the stream's trajectory from sample ``first`` on (velocity and acceleration with it)
+        self.first = 0  # the stream's sample that is ``cmd``'s first
+        self.k0 = 0  # the stream's sample where the running trajectory began
+
+    @property
+    def start(self) -> float:
+        """[s] the stream's time of ``cmd``'s first sample."""
+        return self.first / self.cmd.rate_hz
+
+    def sample(self, t: float) -> int:
+        """``cmd``'s sample at the stream's time ``t`` [s] (clamped to it)."""
+        return min(max(int(t * self.cmd.rate_hz) - self.first, 0), len(self.cmd.times) - 1)
+
+    def splice(self, cmd: Command, sent: float) -> None:
+        """``cmd`` takes over at its ``at`` from the running trajectory; what is before ``sent``
+        [s, the stream's time], where the next line begins, is let go."""
+        cut = self.k0 + round(cmd.at * cmd.rate_hz) - self.first  # (a splice's at: a whole sample)
+        keep = min(max(int(sent * cmd.rate_hz) - 1 - self.first, 0), cut)
+        old = self.cmd
+        position = np.vstack([old.position[keep:cut], cmd.position])
+        velocity = np.vstack([old.velocity[keep:cut], cmd.velocity])
+        acceleration = np.vstack([old.acceleration[keep:cut], cmd.acceleration])
+        times = np.arange(len(position)) / cmd.rate_hz
+        self.cmd = Command(
+            cmd.id, cmd.kind, cmd.rate_hz, times, position, velocity, acceleration, cmd.commands[-1:], track=cmd.track
+        )
+        self.first += keep
+        self.k0 = self.first + cut - keep
+
+
 class GrblAdapter(SerialAdapter):
     kind = "grbl"
-    splices = False  # (GRBL's planner holds 15 blocks of the old trajectory: a stream is jogged, $J=, not spliced)
+    splices = True  # a stream's lines go on from what GRBL holds (:meth:`spliced`): see "Tracking streams"
 
     def __init__(
         self,
@@ -295,6 +430,7 @@ class GrblAdapter(SerialAdapter):
         # GRBL's blocks still holding a stop's travel
         self._shortest = max(self.segment * SEGMENT_RANGE[0], 2.0 * STEP_WINDOW, stop_time / (PLANNER_BLOCKS - 3))
         self._longest = max(self.segment * SEGMENT_RANGE[1], self._shortest)
+        self._stream_line = max(STREAM_LINE, self._shortest)  # [s] a stream's longest lines
         if np.any(self._spd > 500.0):  # GRBL reports positions to 0.001 (N_DECIMAL_COORDVALUE_MM)
             log.warning("%s: over 500 steps a degree: GRBL's reports (3 decimals) may be a step off", robot.name)
         self._index = [AXES.index(ax) for ax in self.axes]
@@ -330,6 +466,10 @@ class GrblAdapter(SerialAdapter):
         self._speed = 0.0  # [deg/s] the speed along its path GRBL last reported
         self._sample = 0  # the running trajectory's sample nearest where GRBL last was
         self._target: np.ndarray | None = None  # [GRBL steps] where the running trajectory ends
+        self._sent: _Line | None = None  # the last line sent of the running trajectory (a stream goes on from it)
+        self._held: _Held | None = None  # a stream's lines GRBL holds
+        self._path: _Path | None = None  # a stream's path, as spliced
+        self._lag = 0.0  # [s] how far GRBL runs behind the stream's time
         self._v = np.zeros(robot.nq)
         self._a = np.zeros(robot.nq)
         try:
@@ -567,7 +707,15 @@ class GrblAdapter(SerialAdapter):
             raise BadRequest(f"GRBL line of {len(line)} characters (at most {LINE_MAX}): {line!r}", field="line")
         return (line + "\n").encode()
 
-    def _segments(self, cmd: Command, start: np.ndarray) -> Iterator[bytes]:
+    def _segments(
+        self,
+        cmd: Command,
+        start: np.ndarray,
+        *,
+        t_start: float = 0.0,
+        unit: np.ndarray | None = None,
+        feed: float = 0.0,
+    ) -> Iterator[_Line]:
         """The trajectory as ``G53 G1`` lines from GRBL's ``start`` [steps], each to a whole-step
         position next to the trajectory's at some time, the last one to the final sample's
         position; made one at a time, as GRBL's buffers take them.
@@ -583,11 +731,18 @@ class GrblAdapter(SerialAdapter):
         leaves a last line shorter than ``_shortest``, is not one (unless none is: then the
         shortest). So where the trajectory goes straight, the lines' whole-step ends keep GRBL's
         direction (it takes their junctions at full speed), and where it curves, the lines are
-        long chords, at whose corners GRBL slows down to turn within ``JUNCTION_SHARE``."""
+        long chords, at whose corners GRBL slows down to turn within ``JUNCTION_SHARE``. An end
+        beyond the joints' limits (a whole step past a trajectory at its limit) is none.
+
+        From ``t_start`` [s] of the trajectory on, where the line before (``unit``, at ``feed``
+        [deg/s]) left GRBL at ``start``: a stream's path goes on from what GRBL was sent (its
+        first line joins it if a splice changed it there); its lines are at most ``_stream_line``
+        long (a splice waits for what GRBL holds) and within ``STREAM_CHORD_TOL`` of it (a
+        stream's path turns all the time: fewer corners, where GRBL must slow down)."""
         times, duration = cmd.times, cmd.duration
         ideal = self.robot.actuators.command_values(cmd.position) - self._offset  # [steps], unrounded
         final = cmd.commands[-1] - self._offset
-        tol = np.degrees(CHORD_TOL) * self._spd + 1.0  # [steps] per axis
+        tol = np.degrees(CHORD_TOL if cmd.track is None else STREAM_CHORD_TOL) * self._spd + 1.0  # [steps] per axis
         nj = len(self._spd)
         corners = np.array(np.meshgrid(*[[0, 1]] * nj, indexing="ij")).reshape(nj, -1).T  # (2^nj, nj)
         pace = np.linalg.norm(np.diff(ideal, axis=0) / self._spd, axis=1) * cmd.rate_hz  # [deg/s] between samples
@@ -595,27 +750,29 @@ class GrblAdapter(SerialAdapter):
         def at(t: np.ndarray) -> np.ndarray:  # the trajectory's position [steps] at times t [s]
             return np.column_stack([np.interp(t, times, ideal[:, j]) for j in range(nj)])
 
-        here, t0 = np.asarray(start, dtype=np.int64), 0.0
-        unit: np.ndarray | None = None  # the last line's direction
-        feed = 0.0  # [deg/s] its speed
-        soonest, latest = self._shortest, self._longest  # [s] after t0
+        here, t0 = np.asarray(start, dtype=np.int64), t_start
+        longest = self._longest if cmd.track is None else self._stream_line
+        soonest, latest = self._shortest, longest  # [s] after t0
         while t0 < duration:
             tc = t0 + np.arange(soonest, latest + 1e-9, CANDIDATE_DT)
             tc = tc[(tc < duration) & (duration - tc >= self._shortest - 1e-9)]
             ends = (np.floor(at(tc))[:, None, :] + corners[None]).reshape(-1, nj).astype(np.int64)
             tc = np.repeat(tc, len(corners))
             last = duration - t0 <= latest + 1e-9 or not len(tc)
+            inside = self.robot.limits.contains_batch(self._joints(ends)) if len(ends) else np.zeros(0, dtype=bool)
             if last:  # the last line may end at the final sample
                 ends, tc = np.vstack([ends, final[None]]), np.append(tc, duration)
+                inside = np.append(inside, True)  # (the trajectory's own)
             d = (ends - here) / self._spd  # [deg]
             length = np.linalg.norm(d, axis=1)
             if not np.any(length > 0):
                 if last:
                     return  # at the final position
                 # the arm stands still: the next line takes its time too
-                soonest, latest = latest, latest + self._longest
+                soonest, latest = latest, latest + longest
                 continue
-            ends, tc, d, length = ends[length > 0], tc[length > 0], d[length > 0], length[length > 0]
+            keep = (length > 0) & inside if np.any((length > 0) & inside) else length > 0
+            ends, tc, d, length = ends[keep], tc[keep], d[keep], length[keep]
             u = d / length[:, None]
             with np.errstate(divide="ignore"):
                 accel = np.min(np.where(u != 0, self._amax / np.abs(u), np.inf), axis=1)  # [deg/s^2] GRBL's, along
@@ -627,7 +784,7 @@ class GrblAdapter(SerialAdapter):
             k0 = max(int(np.searchsorted(times, t0, side="right")) - 1, 0)
             fastest = np.maximum.accumulate(pace[k0:])  # [deg/s] the trajectory's fastest from t0 on
             k1 = np.clip(np.searchsorted(times, tc) - 1 - k0, 0, len(fastest) - 1)
-            speed, took = self._feeds(length, tc - t0, entry, then, fastest[k1], accel)
+            speed, took = self._feeds(length, tc - t0, entry, then, fastest[k1], accel, cmd.track is not None)
             # the time GRBL falls behind, with its slowing down at the next junction (toward the way there)
             lost = took - (tc - t0) + self._slowing(u, onward, speed, accel)
             if unit is not None:  # (slowing to the junction speed, at the end of the line before)
@@ -644,24 +801,34 @@ class GrblAdapter(SerialAdapter):
                 fits &= ~(straight & np.any(step > JUNCTION_SHARE * STEP_WINDOW * self._amax, axis=1))
             score = np.where(fits, lost / (tc - t0), np.inf)
             best = int(np.lexsort((np.abs(tc - t0 - self.segment), score))[0]) if fits.any() else int(np.argmin(tc))
-            yield self._line(ends[best], speed[best] * 60.0)
             here, t0, unit, feed = ends[best], float(tc[best]), u[best], float(speed[best])
-            soonest, latest = self._shortest, self._longest
+            yield _Line(self._line(here, feed * 60.0), here, t0, unit, feed)
+            soonest, latest = self._shortest, longest
 
     @staticmethod
     def _feeds(
-        length: np.ndarray, span: np.ndarray, entry: np.ndarray, then: np.ndarray, top: np.ndarray, accel: np.ndarray
+        length: np.ndarray,
+        span: np.ndarray,
+        entry: np.ndarray,
+        then: np.ndarray,
+        top: np.ndarray,
+        accel: np.ndarray,
+        capped: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Each candidate line's speed [deg/s], and the time [s] GRBL takes on it, about: a line of
         ``length`` [deg] that the trajectory covers in ``span`` [s], entered at ``entry`` [deg/s]
         and left toward the trajectory's speed ``then``, GRBL accelerating and slowing at
         ``accel`` [deg/s^2]. The slowest speed, from the average up to the trajectory's fastest
-        there (``top``), with which GRBL takes ``span``; else the one with which it takes least."""
+        there (``top``), with which GRBL takes ``span``; else the one with which it takes least.
+        ``capped`` (a stream's): never beyond ``top``, though GRBL then takes longer (the line that
+        joins what GRBL held of one trajectory to the next may be longer than their way there)."""
         average = length / span
+        most = np.maximum(top, 1e-3) if capped else np.maximum(top, average)
+        average = np.minimum(average, most)
         best, took = average.copy(), np.full(len(length), np.inf)
         done = np.zeros(len(length), dtype=bool)
         for k in range(FEED_STEPS + 1):
-            feed = np.minimum(average * (1.0 + k / FEED_STEPS), np.maximum(top, average))
+            feed = np.minimum(average * (1.0 + k / FEED_STEPS), most)
             t = length / feed + ((feed - np.minimum(entry, feed)) ** 2 + (feed - np.minimum(then, feed)) ** 2) / (
                 2.0 * accel * feed
             )
@@ -713,7 +880,10 @@ class GrblAdapter(SerialAdapter):
             self._queue.clear()
             self._pending.clear()
             return True
-        if self._fresh and (self._state, self._sub) in (("Hold", "0"), ("Idle", None)):
+        # Hold:0 only: a feed hold of G1 lines always ends there (in Idle too, at once), and its
+        # main loop, suspended, reads no line until the reset; an "Idle" is a report made before
+        # the hold was taken, and a line still on its way could start GRBL after it
+        if self._fresh and (self._state, self._sub) == ("Hold", "0"):
             self._holding = None
             self._reset()  # keeps the position: GRBL is at rest
             return True
@@ -733,12 +903,23 @@ class GrblAdapter(SerialAdapter):
     # -- the Adapter hooks ----------------------------------------------------------------------
 
     def admit(self, cmd: Command) -> None:
-        """A trajectory whose lines GRBL could not take (over 79 characters) is refused."""
+        """A trajectory whose lines GRBL could not take (over 79 characters) is refused; so is a
+        stream's splice while GRBL runs more than ``STREAM_LAG`` behind the stream's time (it
+        slows down where the path turns): the arm goes on to the end of what it runs, at rest
+        where that one's deadman said, and the stream starts again from there, on time."""
         widest = -np.max(np.abs(cmd.commands - self._offset), axis=0) - 1  # the most characters a line may need
         try:
             self._line(widest, 99999.0)
         except BadRequest as e:
             raise BadRequest(f"{self.robot.name}: {e.message}", field="position") from None
+        lag = self._lag if self._streaming and self._path is not None else 0.0  # (a stream that runs)
+        if cmd.after is not None and lag > STREAM_LAG:
+            raise BadRequest(
+                f"GRBL runs {lag:.2f} s behind the stream (it slows down where the path turns, at most "
+                f"{STREAM_LAG:g} s): the arm goes on to the end of what it runs, and the stream starts again there",
+                field="splice",
+                lag=lag,
+            )
 
     def stop_command(self, ident: str) -> Command:
         """A stop of kind ``stop``: ``execute`` runs it as GRBL's feed hold; its samples are that
@@ -782,13 +963,29 @@ class GrblAdapter(SerialAdapter):
                 return True
         if not self._streaming:
             return self._start(cmd, t)
-        self._v, self._a = self._motion(cmd)
-        # send ahead while GRBL's receive buffer has room (character counting)
-        while self._queue and sum(self._pending) + len(self._queue.peek()) <= RX_BUFFER:
+        self._v, self._a = self._motion(cmd, t)
+        if self._path is not None and self._held is not None:
+            self._lag = self._path.k0 / cmd.rate_hz + t - self._held.at
+        # send ahead while GRBL's receive buffer has room (character counting); a stream's, while due
+        while (
+            (self._held is None or self._due())  # (first: a line is made only when one is due)
+            and self._queue
+            and sum(self._pending) + len(self._queue.peek().text) <= RX_BUFFER
+        ):
             line = self._queue.pop()
-            self._pending.append(len(line))
-            self._write(line)
-        if self._queue or self._pending or not self._fresh or self._state != "Idle":
+            self._pending.append(len(line.text))
+            self._write(line.text)
+            if self._path is not None and self._held is not None:  # (a stream's: in the stream's time)
+                line = line._replace(t=line.t + self._path.start)
+                self._held.lines.append(line)
+            self._sent = line
+        if (
+            self._queue
+            or self._pending
+            or not self._fresh
+            or self._state != "Idle"
+            or (self._path is not None and t < cmd.duration)  # (a stream's: no splice may come for it now)
+        ):
             if time.monotonic() - self._asked >= STATUS_EVERY:
                 self._poll_status()
             return False
@@ -822,9 +1019,55 @@ class GrblAdapter(SerialAdapter):
             return False
         self._target = cmd.commands[-1] - self._offset
         self._queue = _Lines(self._segments(cmd, self._steps))
+        self._sent = _Line(b"", self._steps.copy(), 0.0, None, 0.0)
+        stream = cmd.track is not None
+        self._held = _Held(self._steps.copy(), 0.0) if stream else None
+        self._path = _Path(cmd) if stream else None
+        self._lag = 0.0
         self._streaming = True
         self._sample = 0
         return self.execute(cmd, t, False)
+
+    def _due(self) -> bool:
+        """Whether a stream's next line is to go now: while GRBL holds less of the path, beyond
+        where it is, than the window (:meth:`_window`) there and at the end of what it holds."""
+        assert self._held is not None
+        held = self._held
+        at = held.advance(self._steps, self._spd, self._ran_all())
+        return held.end - at < max(self._window(at), self._window(held.end))
+
+    def _ran_all(self) -> bool:
+        """GRBL ran every line it was sent: it said Idle after the last ``ok``."""
+        return self._fresh and self._state == "Idle" and not self._pending
+
+    def _window(self, t: float) -> float:
+        """How much of a stream's path [s] GRBL must hold beyond where it is, at the stream's time
+        ``t``: ``STREAM_LEAD``, and ``STREAM_KEEP`` times the time it takes to brake at the limits
+        from the path's speed there. GRBL plans a stop at the end of what it holds (planner.c: the
+        newest block is planned to exit at rest), so, holding less, it slows down to be able to
+        stop there; and what it holds it runs, whatever comes next: a splice changes the motion
+        from the end of it on. So it holds that much, and no more."""
+        assert self._path is not None
+        path = self._path.cmd
+        k = self._path.sample(t)
+        rates = np.degrees(self.robot.actuators.jacobian(path.position[k]) @ path.velocity[k])  # [deg/s] per axis
+        return STREAM_LEAD + STREAM_KEEP * float(np.max(np.abs(rates) / (2.0 * self._amax)))
+
+    def spliced(self, before: Command, cmd: Command) -> None:
+        """A stream's ``cmd`` takes over from ``before`` at ``cmd.at``: GRBL runs what it holds (no
+        command replaces a block in its planner), and its path goes on through ``before`` up to
+        ``cmd.at``, then through ``cmd`` (:class:`_Path`): the lines from the last one sent on
+        are made of that. Where GRBL runs behind the plan's time (it slows down where the path
+        turns), it has not been sent ``before``'s part beyond ``cmd.at``: it follows ``cmd`` from
+        there, late; else the line after those held joins ``cmd`` from where they leave it."""
+        if not self._streaming or self._sent is None or self._path is None:
+            return  # (not started: execute starts it where GRBL is)
+        path, sent = self._path, self._sent
+        path.splice(cmd, sent.t)
+        self._target = cmd.commands[-1] - self._offset
+        self._queue = _Lines(
+            self._segments(path.cmd, sent.steps, t_start=max(sent.t - path.start, 0.0), unit=sent.unit, feed=sent.feed)
+        )
 
     def hold(self) -> None:
         """Feed hold now (from any thread: one byte); the control loop completes it (:meth:`check`)."""
@@ -836,13 +1079,21 @@ class GrblAdapter(SerialAdapter):
         self._v = np.zeros(self.robot.nq)
         self._a = np.zeros(self.robot.nq)
 
-    def _motion(self, cmd: Command) -> tuple[FloatArray, FloatArray]:
-        """The arm's velocity and acceleration while ``cmd`` streams, about: the trajectory's at its
-        sample nearest where GRBL is (on from the last one's, within a second of it), the velocity
-        scaled to the speed GRBL reports (GRBL runs behind the plan, slower at corners)."""
+    def _motion(self, cmd: Command, t: float) -> tuple[FloatArray, FloatArray]:
+        """The arm's velocity and acceleration while ``cmd`` streams, about: the trajectory's where
+        GRBL is along it (a stream's: along the lines it holds, on its path; a move's: its sample
+        nearest, on from the last one's, within a second of it and not beyond the plan's time
+        ``t`` [s]), the velocity scaled to the speed GRBL reports (it runs behind the plan, slower
+        at corners)."""
         here = self._joints(self._steps)
-        ahead = cmd.position[self._sample : self._sample + int(cmd.rate_hz) + 1]
-        self._sample += int(np.argmin(np.linalg.norm(ahead - here, axis=1)))
+        if self._held is not None and self._path is not None:
+            cmd = self._path.cmd
+            self._sample = self._path.sample(self._held.advance(self._steps, self._spd, self._ran_all()))
+        else:
+            now = min(int(t * cmd.rate_hz) + 1, len(cmd.times) - 1)
+            self._sample = min(self._sample, now)
+            ahead = cmd.position[self._sample : min(self._sample + int(cmd.rate_hz), now) + 1]
+            self._sample += int(np.argmin(np.linalg.norm(ahead - here, axis=1)))
         v, a = cmd.velocity[self._sample], cmd.acceleration[self._sample]
         rates = np.degrees(self.robot.actuators.jacobian(here) @ v)  # [deg/s] per axis, as planned
         planned = float(np.linalg.norm(rates))

@@ -895,6 +895,156 @@ def test_a_jog_beyond_soft_limits_is_refused(grbl: Open) -> None:
     assert status(ser)["state"] == "Idle"
 
 
+def test_jog_blocks_run_the_same_planner_as_g1_lines(grbl: Open) -> None:
+    """jog.c hands a jog's target to mc_line as gc_execute_line does a G1's: the same blocks,
+    junctions and profiles (a jog's only differences: its own F, no feed override, and from
+    Idle it starts at once; G1 lines start once the receive buffer runs dry, here as soon)."""
+    lines = ["X3 Y1 F600", "X6 Y1.5 F900", "X6.5 Y4 F300", "X2 Y4 F1200"]
+    motions = []
+    for prefix, running in (("$J=G53", "Jog"), ("G53G1", "Run")):
+        clock = FakeClock()
+        emu, ser = grbl(clock=clock, settings={120: 20, 121: 8, 11: 0.05})
+        for line in lines:
+            assert command(ser, prefix + line) == ["ok"]
+        assert status(ser)["state"] == running
+        clock.now += 10.0
+        report = status(ser)
+        assert report["state"] == "Idle" and mpos(report)[:2] == [2.0, 4.0]
+        motions.append([(t - 100.0, dt, p, v, a) for t, dt, p, v, a in emu.pieces])
+    jog, g1 = motions
+    assert len(jog) == len(g1) >= 8
+    for a, b in zip(jog, g1, strict=True):
+        flat = [a[0], a[1], *a[2], *a[3], *a[4]]
+        assert flat == pytest.approx([b[0], b[1], *b[2], *b[3], *b[4]], abs=1e-12)
+    speeds = [math.hypot(*p[3]) for p in jog]
+    assert min(speeds[1:]) > 0.0 and max(speeds) > 5.0  # it turned at speed, not from rest
+
+
+def test_a_jog_cancel_brakes_along_the_queued_blocks_then_flushes_them(grbl: Open) -> None:
+    """protocol.c: a jog cancel is a feed hold (stepper.c's deceleration along the blocks, each at
+    its own acceleration: no axis beyond its $12x), then plan_reset: the blocks left are dropped,
+    parser and planner synced to where it stopped, Idle with no alarm and no reset."""
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, settings={110: 1200, 111: 1200, 120: 20, 121: 5})
+    # along (2, 1): the path's acceleration 5 / 0.447 = 11.18 (Y at its $121); 10 units/s; then a turn
+    for line in ("$J=G53X9Y4.5F600", "$J=G53X12Y6F600", "$J=G53X12Y9F600"):
+        assert command(ser, line) == ["ok"]
+    accel = 5 / (1 / math.sqrt(5))
+    clock.now += 10 / accel + 1.5 / 10  # up to speed (4.47 units along), then 1.5 more
+    cancelled = 10**2 / (2 * accel) + 1.5  # [units] along the path
+    emu.clear_trace()
+    ser.write(b"\x85")
+    report = status(ser)
+    assert report["state"] == "Jog"  # braking: still Jog
+    assert mpos(report)[0] == pytest.approx(cancelled * 2 / math.sqrt(5), abs=0.004)
+    advance(emu, clock, 2.0, 0.01)
+    report = status(ser)
+    assert report["state"] == "Idle" and report["FS"] == "0,0"  # no Hold, no alarm: Idle
+    pieces = emu.pieces
+    assert pieces and all(abs(a[0]) <= 20 + 1e-9 and abs(a[1]) <= 5 + 1e-9 for *_, a in pieces)
+    assert max(abs(p[4][1]) for p in pieces) == pytest.approx(5.0)  # the block's own acceleration
+    speeds = [math.hypot(*(v + a * dt for v, a in zip(v0, a0, strict=True))) for _, dt, _, v0, a0 in pieces]
+    assert all(b <= a + 1e-9 for a, b in itertools.pairwise([10.0, *speeds]))  # slowing, never faster
+    here = mpos(report)
+    along = cancelled + 10**2 / (2 * accel)  # v^2 / 2a on, through the junction into the second block
+    assert here[:2] == pytest.approx([along * 2 / math.sqrt(5), along / math.sqrt(5)], abs=0.004)
+    assert 9.0 < here[0] < 12.0
+    clock.now += 10.0
+    assert mpos(status(ser)) == here  # the rest was flushed
+    assert command(ser, "$J=G91X1F600") == ["ok"]  # the parser synced to where it stopped
+    clock.now += 10.0
+    assert mpos(status(ser))[:2] == pytest.approx([here[0] + 1.0, here[1]], abs=0.004)
+
+
+def test_a_jog_cancel_suspends_the_parser_and_a_jog_sent_behind_it_runs_after_it(grbl: Open) -> None:
+    """While a jog cancel brakes, GRBL's main loop is suspended (protocol_exec_rt_suspend: no line
+    is read); once Idle, the lines behind the cancel run: a jog sent a moment after ``0x85`` moves
+    the machine again, from where it stopped."""
+    clock = FakeClock()
+    _, ser = grbl(clock=clock)
+    assert command(ser, "$J=G53X10F300") == ["ok"]  # 5 units/s, 10 units/s^2
+    clock.now += 1.0  # X = 3.75
+    ser.write(b"\x85$J=G53Y2F300\n")
+    ser.timeout = 0.1
+    assert readline(ser) == ""  # not read while the cancel brakes
+    assert status(ser)["state"] == "Jog"
+    ser.timeout = 1
+    clock.now += 0.6  # stopped at X = 5 (v^2 / 2a on), Idle: the line is read, and runs
+    assert readline(ser) == "ok"
+    assert status(ser)["state"] == "Jog"
+    clock.now += 10.0
+    assert mpos(status(ser)) == [5.0, 2.0, 0.0]
+
+
+def test_a_jog_waiting_for_a_free_block_when_cancelled_runs_after_the_cancel(grbl: Open) -> None:
+    """gnea/grbl#837 (and #95, #423): a jog line the parser holds in mc_line, waiting for a free
+    planner block when the cancel is taken, is planned once the cancel has flushed the planner, and
+    the machine moves on after the cancel. (A jog whose 'ok' came before the cancel is flushed.)"""
+    clock = FakeClock()
+    emu, ser = grbl(clock=clock, planner_blocks=3)
+    for x in (1, 2, 3):
+        assert command(ser, f"$J=G53X{x}F300") == ["ok"]
+    ser.write(b"$J=G53X4Y3F300\n")  # the planner is full: no ok yet
+    ser.timeout = 0.1
+    assert readline(ser) == ""
+    ser.timeout = 1
+    clock.now += 0.3  # X = 0.45 at 3 units/s, in the first block still
+    ser.write(b"\x85")
+    assert status(ser)["state"] == "Jog"
+    clock.now += 0.35  # stopped at X = 0.9 (0.3 s): the parser goes on, and the jog runs
+    assert readline(ser) == "ok"
+    clock.now += 10.0
+    assert mpos(status(ser)) == [4.0, 3.0, 0.0]
+    ends = [(p[2][0] + p[3][0] * p[1] + p[4][0] * p[1] ** 2 / 2, p[3][0] + p[4][0] * p[1]) for p in emu.pieces]
+    stops = [x for x, v in ends if abs(v) < 1e-9]
+    assert stops[0] == pytest.approx(0.9)  # at rest there, then on toward (4, 3)
+
+
+def test_g1_lines_behind_a_feed_hold_are_flushed_by_the_reset_in_hold_0(grbl: Open) -> None:
+    """The feed hold of G1 lines (what the GRBL adapter streams): lines that come during its
+    deceleration go into the planner, none is read in Hold:0 (the main loop is suspended), and a
+    reset there empties buffers and planner, with no alarm: nothing runs after the stop."""
+    clock = FakeClock()
+    _, ser = grbl(clock=clock)
+    assert command(ser, "G53G1X10F300") == ["ok"]
+    clock.now += 1.0  # X = 3.75
+    ser.write(b"!G53G1X10Y2F300\n")
+    assert readline(ser) == "ok"  # planned during Hold:1
+    clock.now += 0.6
+    assert status(ser)["state"] == "Hold:0"
+    ser.write(b"G53G1Y4F300\n")
+    ser.timeout = 0.1
+    assert readline(ser) == ""  # not read in Hold:0
+    ser.timeout = 1
+    ser.write(b"\x18")
+    assert read_until(ser, WELCOME) == [WELCOME]
+    clock.now += 10.0
+    report = status(ser)
+    assert report["state"] == "Idle" and mpos(report) == [5.0, 0.0, 0.0]
+
+
+def test_a_jog_cancel_outside_jog_is_ignored_and_a_jog_without_a_block_does_not_start(grbl: Open) -> None:
+    clock = FakeClock()
+    _, ser = grbl(clock=clock)
+    assert command(ser, "G1 X10 F300") == ["ok"]
+    clock.now += 1.0
+    ser.write(b"\x85")  # serial.c: only in the Jog state
+    assert status(ser)["state"] == "Run"
+    clock.now += 10.0
+    assert mpos(status(ser))[0] == 10.0
+    assert command(ser, "$J=G53X10F300") == ["ok"]  # where it is: no block, so no jog
+    report = status(ser)
+    assert report["state"] == "Idle"
+    ser.write(b"\x85")
+    assert status(ser)["state"] == "Idle"
+    assert command(ser, "$J=F600") == ["ok"]  # no axis word: gc_execute_line's zeroed target, machine zero
+    assert status(ser)["state"] == "Jog"
+    assert command(ser, "$G")[0].startswith("[GC:G1 G54")  # answered while jogging, as $$ and $X are
+    assert command(ser, "$#") == ["error:8"]  # the others want Idle or Alarm
+    clock.now += 10.0
+    assert mpos(status(ser)) == [0.0, 0.0, 0.0]
+
+
 def test_report_inches_changes_every_printed_position_and_rate(grbl: Open) -> None:
     clock = FakeClock()
     _, ser = grbl(clock=clock, settings={13: 1})  # a board someone set to report inches

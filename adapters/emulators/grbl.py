@@ -107,11 +107,22 @@ Covered:
   down by stepper.c's deceleration-override ramp; jogs and homing ignore the feed override;
   ``Ov:`` shows them, in the next report after a change; M2/M30 restore them. Other bytes
   0x80-0xFF are dropped.
-- Jogging (gcode.c, jog.c, protocol.c): ``$J=`` with axis words, its own ``F``, and optionally
-  ``G90``/``G91``, ``G20``/``G21``, ``G53`` (others error 16, no F 22), in Idle or Jog (else error 8);
-  it starts at once, state ``Jog``, and changes no modal state; with ``$20=1`` a jog beyond the
-  limits is error 15 (no alarm). G-code lines while jogging are error 9. ``0x85`` or ``!`` cancel
-  it: a deceleration, then the planner is flushed and the state is Idle.
+- Jogging (gcode.c, jog.c, protocol.c, serial.c): ``$J=`` with axis words, its own ``F``, and
+  optionally ``G90``/``G91``, ``G20``/``G21``, ``G53`` (others error 16, no F 22), in Idle or Jog
+  (else error 8). Its blocks go through the same planner as G1 (acceleration and junction
+  deviation, no feed override); from Idle it starts at once if it planned a block (jog_execute:
+  one to where the machine is plans none, and it stays Idle), state ``Jog``, and changes no modal
+  state but the parser's position; a ``$J=`` with no axis word goes to machine zero (gc_execute_line
+  zeroes its block, and only axis words set the target). With ``$20=1`` a jog beyond the travel
+  is error 15 (no alarm). G-code lines while jogging are error 9; ``$$``, ``$G`` and ``$X`` are
+  answered, other ``$`` commands (``$H``, ``$#``, ``$I``, settings) error 8 (system.c). ``0x85``
+  (only in the Jog state: the serial interrupt ignores it elsewhere) or ``!`` cancel it: a
+  deceleration along the queued blocks at their accelerations (the feed hold's), during which the
+  main loop is suspended (it reads no line and the parser waits where it is), then the planner is
+  flushed, parser and planner synced to where it stopped, and the state is Idle, no alarm. A line
+  not yet in the planner when the cancel is taken (in the receive buffer, or the parser waiting in
+  mc_line for a free block) is then executed, from where it stopped: the machine moves again after
+  the cancel (GRBL 1.1h's known flaw, gnea/grbl#95, #423, #837).
 - For tests: ``trace`` (clock time, physical position per axis) at every pass of the machine
   model while moving (the thread's 2 ms poll, and every query) and at each block's end, and
   ``pieces``, the exact motion before its whole steps (pieces of constant acceleration, each
@@ -634,6 +645,12 @@ class GrblEmulator(PtyEmulator):
 
     def _moving(self) -> bool:
         return bool(self._blocks) and (self._cycle or self._homing is not None) and self._hold != 2
+
+    def _suspended(self) -> bool:
+        """GRBL's ``sys.suspend`` (protocol_exec_rt_suspend): the main loop reads no line and the
+        parser waits where it is, in a completed hold (Hold:0) and for the whole of a jog cancel
+        (SUSPEND_JOG_CANCEL is set when the cancel is taken, cleared when it has stopped)."""
+        return self._hold == 2 or (self._hold == 1 and self._jog)
 
     def _steps_now(self) -> list[int]:
         if not self._blocks:
@@ -1240,7 +1257,7 @@ class GrblEmulator(PtyEmulator):
 
     def _unblock(self) -> None:
         """Finish the line the parser waits with, if the machine has made room or synced."""
-        if self._critical or self._hold == 2:
+        if self._critical or self._suspended():
             return
         if self._pending is not None:
             self._auto_cycle_start()
@@ -1259,8 +1276,8 @@ class GrblEmulator(PtyEmulator):
                 return
             target, rate, jog = self._waiting.popleft()
             self._plan_line(target, rate, jog=jog)
-            if jog and not self._cycle and not self._hold and not self._alarm:
-                self._cycle = self._jog = True  # jog_execute: a jog starts at once, from Idle
+            if jog and self._blocks and not self._cycle and not self._hold and not self._alarm:
+                self._cycle = self._jog = True  # jog_execute: from Idle, a jog starts at once (if it planned a block)
             if not self._waiting and self._flow is None:
                 self._reply(0)
         if self._flow is not None and self._dwell_left is None:
@@ -1286,7 +1303,7 @@ class GrblEmulator(PtyEmulator):
 
     def _read_lines(self) -> None:
         """GRBL's protocol loop: take characters from the receive buffer while the parser is free."""
-        while self._rx and not self._parser_busy() and not self._critical and self._hold != 2:
+        while self._rx and not self._parser_busy() and not self._critical and not self._suspended():
             c = self._rx.popleft()
             if c in (0x0A, 0x0D):
                 self._end_line()
@@ -1645,6 +1662,8 @@ class GrblEmulator(PtyEmulator):
         scale = 25.4 if {20: True, 21: False}.get(groups.get("units", -1), mod.inches) else 1.0
         absolute = groups.get("distance", 90 if mod.absolute else 91) == 90
         target = list(self._gc_pos)
+        if not any(a in words for a in self.axes):  # gc_execute_line zeroes its block and only axis words
+            target = [0.0] * len(self.axes)  # set the target: a jog with none goes to machine zero
         for j, a in enumerate(self.axes):
             if a in words:
                 v = words[a] * scale
