@@ -1,16 +1,30 @@
-"""A recording of an arm moved by hand (``armd record``) and the way it is replayed
-(``armd replay``): checked, smoothed, reduced to via points, split where the gripper moves.
+"""A recording of an arm moved by hand (``armd record``) or driven through its tracking stream
+(``armd record --teleop``), and the ways it is replayed (``armd replay``): checked, smoothed,
+reduced to via points, split where the gripper moves; or its commands put again on the stream.
 
 The file is JSON (docs/adapters.md, "Teach and replay")::
 
-    {"format": "armd-recording", "version": 1, "robot": "so101",
+    {"format": "armd-recording", "version": 2, "robot": "so101",
      "joints": ["shoulder_pan", ...], "unit": "rad",
-     "t": [0.0, 0.003, ...],                    # [s] from the start, increasing
+     "t": [0.0, 0.02, ...],                     # [s] from the start, increasing
      "q": [[0.01, -1.2, ...], ...],             # [rad] one joint vector a reading
-     "gripper": [0.0, 0.0, ...]}                # opening in [0, 1] a reading, or null
+     "gripper": [0.0, 0.0, ...],                # opening in [0, 1] a reading, or null
+     "state": {"adapter": "sim-4f2a", "source": "commanded"},   # optional: who said where the arm was
+     "commands": [{"t": 0.013, "put": {"session": "...", "seq": 0, "target": [...], ...}}, ...]}
+
+Version 1 has no ``commands`` and no ``state``: ``armd record`` of an arm by hand writes it
+still (any armd reads it), and it is read as it always was. Version 2 (``armd record
+--teleop``) adds ``commands``: every put heard on ``<prefix>/<robot>/track`` while recording
+(a list, empty if none was), ``t`` [s] on the readings' clock, never falling, and ``put`` the
+JSON object as it was sent; and ``state``, optional: the adapter whose state the readings are
+and its ``source`` (``measured`` or ``commanded``, as the adapter says). Its ``gripper`` is
+the opening that adapter last said it commanded (its ``gripper`` events), the first one standing
+for the readings before it; null if it commanded none.
 
 A replay is the recording's path, not its timing: each part between gripper changes is one
-jerk-limited ``move`` through its via points, timed by the service within every limit.
+jerk-limited ``move`` through its via points, timed by the service within every limit. A
+stream replay (``armd replay --stream``) puts the commands again at their own pace, and the
+service's tracker keeps every limit as it did the first time.
 """
 
 from __future__ import annotations
@@ -18,9 +32,10 @@ from __future__ import annotations
 import itertools
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -30,7 +45,8 @@ from armd.robots import Robot
 from .state import FloatArray
 
 FORMAT = "armd-recording"
-VERSION = 1
+VERSION = 2  # written when a recording has commands; else version 1, which every armd reads
+VERSIONS = (1, 2)  # read
 LIMIT_SLACK = 0.02  # [rad] how far outside a limit a reading may be (a servo's noise at the end): brought inside
 JUMP_STEP = 0.05  # [rad] a change between two readings this large ...
 JUMP_SPEED = 15.0  # [rad/s] ... and this fast is a jump (no hand turns a joint so): a glitch, a lost calibration
@@ -41,22 +57,37 @@ GRIPPER_SETTLE = 0.2  # [s] ... which ends when the opening stays within a fifth
 MAX_VIA = 100  # via points of one move: the service's own limit (max_waypoints)
 MAX_READINGS = 2_000_000  # readings of one recording (about 2 hours at 300 a second) ...
 MAX_FILE_BYTES = 400_000_000  # ... and its file's size
+MAX_COMMANDS = 2_000_000  # commands of one recording (about 5 hours at 100 a second)
+STATE_KEYS = ("adapter", "source")  # what ``state`` may say, each a short string
+MAX_NAME = 64  # characters of each
+
+
+class Command(NamedTuple):
+    """A put on the arm's tracking stream: ``t`` [s] on the recording's clock (the readings')
+    and ``put``, the JSON object as it was sent."""
+
+    t: float
+    put: dict[str, Any]
 
 
 @dataclass(frozen=True)
 class Recording:
-    """``position[k]`` [rad] of ``joints`` at ``times[k]`` [s]; ``gripper[k]`` its opening."""
+    """``position[k]`` [rad] of ``joints`` at ``times[k]`` [s]; ``gripper[k]`` its opening;
+    ``commands``: the tracking stream's puts (None: an arm recorded by hand, version 1);
+    ``state``: the adapter whose state the readings are, and its source."""
 
     robot: str
     joints: tuple[str, ...]
     times: FloatArray
     position: FloatArray
     gripper: FloatArray | None = None
+    commands: tuple[Command, ...] | None = None
+    state: Mapping[str, str] | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "format": FORMAT,
-            "version": VERSION,
+            "version": 1 if self.commands is None else VERSION,
             "robot": self.robot,
             "joints": list(self.joints),
             "unit": "rad",
@@ -64,20 +95,30 @@ class Recording:
             "q": [[round(float(x), 6) for x in row] for row in self.position],
             "gripper": None if self.gripper is None else [round(float(g), 4) for g in self.gripper],
         }
+        if self.commands is not None:
+            if self.state is not None:
+                out["state"] = dict(self.state)
+            out["commands"] = [{"t": round(float(c.t), 6), "put": c.put} for c in self.commands]
+        return out
 
     def save(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(self.to_json()) + "\n")
+        path.write_text(json.dumps(self.to_json(), allow_nan=False) + "\n")
 
     @classmethod
     def from_json(cls, data: object) -> Recording:
         """A recording from its JSON form, its shape checked (else :class:`BadRequest` naming the field)."""
         if not isinstance(data, dict):
             raise BadRequest("a recording is a JSON object", field="recording")
-        if data.get("format") != FORMAT or type(data.get("version")) is not int or data["version"] != VERSION:
+        if data.get("format") != FORMAT or type(data.get("version")) is not int or data["version"] not in VERSIONS:
             raise BadRequest(
                 f"not an armd recording: format {data.get('format')!r} version {data.get('version')!r} "
-                f"(expected {FORMAT!r} version {VERSION})",
+                f"(expected {FORMAT!r} version {' or '.join(map(str, VERSIONS))})",
+                field="format",
+            )
+        if data["version"] >= 2 and "commands" not in data:
+            raise BadRequest(
+                "not an armd recording of version 2: it has no commands (a list, empty if nothing was put)",
                 field="format",
             )
         if data.get("unit", "rad") != "rad":
@@ -103,7 +144,9 @@ class Recording:
             raise BadRequest(f"t must increase: reading {k + 1} at {t[k + 1]:g} s after {t[k]:g} s", field="t")
         if g is not None and (np.any(g < 0.0) or np.any(g > 1.0)):
             raise BadRequest("gripper openings must be in [0, 1]", field="gripper")
-        return cls(robot, tuple(joints), t, q, g)
+        if data["version"] == 1:
+            return cls(robot, tuple(joints), t, q, g)
+        return cls(robot, tuple(joints), t, q, g, _commands(data["commands"]), _state(data.get("state")))
 
     @classmethod
     def load(cls, path: Path) -> Recording:
@@ -130,6 +173,52 @@ def _numbers(value: object, field: str, depth: int) -> FloatArray:
         raise BadRequest(f"{field}'s readings must all have one length", field=field)
     out = np.array(rows, dtype=float)
     return out if depth == 2 else out.reshape(-1)
+
+
+def _commands(value: object) -> tuple[Command, ...]:
+    """A version 2 file's ``commands``: a list of ``{"t": [s], "put": {...}}``, ``t`` finite and
+    never falling; else :class:`BadRequest` naming the command."""
+    if not isinstance(value, list) or len(value) > MAX_COMMANDS:
+        raise BadRequest(f"commands must be a list of at most {MAX_COMMANDS} puts", field="commands")
+    out: list[Command] = []
+    for k, c in enumerate(value):
+        if not isinstance(c, dict) or set(c) != {"t", "put"}:
+            raise BadRequest(f"commands[{k}] must be an object of t [s] and put (the put as sent)", field="commands")
+        t, put = c["t"], c["put"]
+        if type(t) not in (int, float) or not math.isfinite(t):
+            raise BadRequest(f"commands[{k}].t must be a finite number of seconds, got {t!r}", field="commands")
+        if not isinstance(put, dict):
+            raise BadRequest(f"commands[{k}].put must be the put's JSON object, got {put!r:.40}", field="commands")
+        if out and t < out[-1].t:
+            raise BadRequest(
+                f"commands must be in time order: commands[{k}] at {t:g} s after {out[-1].t:g} s", field="commands"
+            )
+        out.append(Command(float(t), put))
+    return tuple(out)
+
+
+def _state(value: object) -> dict[str, str] | None:
+    """A version 2 file's ``state``: absent, or an object of ``adapter`` and ``source``, short strings."""
+    if value is None:
+        return None
+    if (
+        not isinstance(value, dict)
+        or not set(value) <= set(STATE_KEYS)
+        or not all(isinstance(v, str) and len(v) <= MAX_NAME for v in value.values())
+    ):
+        raise BadRequest(
+            f"state must be an object of {' and '.join(STATE_KEYS)}, strings of at most {MAX_NAME} characters",
+            field="state",
+        )
+    return dict(value)
+
+
+def stream_start(rec: Recording) -> int:
+    """The reading where a stream replay starts: the last one at or before the first command
+    (the arm's pose when the stream began), else the first."""
+    if not rec.commands:
+        return 0
+    return max(int(np.searchsorted(rec.times, rec.commands[0].t, side="right")) - 1, 0)
 
 
 @dataclass(frozen=True)

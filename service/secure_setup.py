@@ -23,7 +23,7 @@ from armd.errors import BadRequest
 SERVICE, OPERATOR, GUEST = "armd-service", "operator", "guest"
 ADAPTER_KEYS_IN = ("trajectory", "gripper", "estop", "unlock")  # what an adapter hears
 ADAPTER_KEYS_OUT = ("state", "events", "sensors/*")  # what it says (its range sensors' readings too)
-WATCHED = ("state", "events", "trajectory", "sensors/*")  # what an operator may watch
+WATCHED = ("state", "events", "trajectory", "sensors/*", "track")  # what an operator may watch (track: armd record)
 READ_ONLY = ("info", "fk", "ik", "plan", "detect")  # a guest's verbs, with `robots`
 # What the router lets through, by size (its low-pass filter: larger is dropped at the router,
 # before any armd process sees it), each the limit of what reads it:

@@ -216,3 +216,7 @@ def test_an_operator_streams_to_the_service_and_a_guest_cannot(roles: Callable[[
     assert delivered(operator, "armd/desk4/estop", service)  # (an estop ends a stream: the service hears it)
     assert not delivered(guest, "armd/desk4/track", service)
     assert not delivered(adapter, "armd/desk4/track", service)
+    # an operator hears the puts (`armd record --teleop`, its own session recorded); a guest does not
+    recorder = roles("operator")
+    assert delivered(operator, "armd/desk4/track", recorder)
+    assert not delivered(operator, "armd/desk4/track", guest)
