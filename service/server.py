@@ -67,7 +67,7 @@ from .replicas import Replicas, changes
 from .sensor_book import SensorBook
 from .state import StateBook, implausible, reported_state
 from .track_message import TRACK_BYTES
-from .tracking import Tracker
+from .tracking import Tracker, ahead_of_requests
 
 log = logging.getLogger(__name__)
 QUICK_BYTES = 2048  # an IK request this small is one target: answered without queueing
@@ -142,6 +142,7 @@ class Service:
             end_tracking=self._end_tracking,
         )
         self._trackers: dict[str, Tracker] = {}  # each arm's tracking stream, made at its first put
+        self._track_thread: int | None = None  # the thread Zenoh hands track puts to (raised at its first)
         self._pool = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="armd-req")
         self._stops = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-stop")  # never behind the queue
         self._commands = ThreadPoolExecutor(max_workers=2, thread_name_prefix="armd-move")  # nor behind batches
@@ -491,7 +492,13 @@ class Service:
 
     def _on_track(self, sample: zenoh.Sample) -> None:
         """A put on ``<prefix>/<robot>/track``: to the arm's :class:`Tracker` (the leading
-        replica's alone: one service drives an arm)."""
+        replica's alone: one service drives an arm). Zenoh hands a subscriber's samples to a
+        thread of its own: this one is raised to the streams' priority at its first put, so that
+        a guest's flood of requests (their threads at normal priority, Python's lock handed over
+        every SWITCH_INTERVAL) does not hold a put back."""
+        if self._track_thread != threading.get_ident():
+            self._track_thread = threading.get_ident()
+            ahead_of_requests("the thread that takes track puts")
         robot = str(sample.key_expr).split("/")[-2]
         arm = self.arms.get(robot)
         if arm is None or not self.replicas.leading():

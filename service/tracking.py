@@ -272,7 +272,7 @@ class Tracker:
     # -- the cycles, on the tracker's thread -------------------------------------------------
 
     def _run(self) -> None:
-        _ahead_of_requests(self.arm.name)
+        ahead_of_requests(f"{self.arm.name}: its tracking stream")
         while True:
             with self._cv:
                 while True:
@@ -584,16 +584,16 @@ class Tracker:
         self._gripper = (opening, now)
 
 
-def _ahead_of_requests(name: str) -> None:
-    """The stream's thread ahead of ordinary threads and processes (SCHED_FIFO), where the
-    system permits it: beside a guest's flood of IK batches, a stream's put took 11 ms (median)
-    and 37 ms (p99) to reach the arm, against 3 and 4 idle (bench/track.py --flood). Else as it
-    is, said once in the log."""
+def ahead_of_requests(what: str) -> None:
+    """This thread ahead of ordinary threads and processes (SCHED_FIFO), where the system
+    permits it: beside a guest's flood of IK batches, a stream's put took 11 ms (median) and
+    37 ms (p99) to reach the arm, against 3 and 4 idle (bench/track.py --flood). Else as it is,
+    said once in the log. ``what``: the thread, for the log."""
     try:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(STREAM_PRIORITY))  # (0: this thread, on Linux)
-        log.info("%s: its tracking stream runs at real-time priority (SCHED_FIFO %d)", name, STREAM_PRIORITY)
+        log.info("%s runs at real-time priority (SCHED_FIFO %d)", what, STREAM_PRIORITY)
     except (PermissionError, OSError, AttributeError) as e:
-        log.info("%s: its tracking stream runs at normal priority (no SCHED_FIFO: %s)", name, e)
+        log.info("%s runs at normal priority (no SCHED_FIFO: %s)", what, e)
 
 
 def _wrap(a: float) -> float:
