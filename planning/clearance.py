@@ -10,7 +10,10 @@ apart from everything they are checked against clears every configuration within
 clearance ``d``, or by ``2 * CONTACT`` where ``d`` is smaller: every point of the motion is
 then within the clearance of a checked configuration, or within ``CONTACT`` of travel of one
 at least ``CONTACT`` clear: the whole motion is certified clear, not sampled (and no point of
-any link moves farther between two checks than the clearance at the first, or 20 um).
+any link moves farther between two checks than the clearance at the first, or 20 um). Each
+check is the compiled collision stage's (:func:`armd.solvers.world.compiled`); where every
+pair is a primitive one, the whole walk is one compiled call
+(:func:`planning.compiled.clear_walk`), else it is walked here, the mesh pairs through coal.
 A configuration nearer than :data:`CONTACT` (10 um: coal's distances are good to about a
 micrometre) to something counts as in contact.
 
@@ -21,11 +24,17 @@ never refused).
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 import numpy as np
 
 from armd.errors import CollisionError
 from armd.robots import Robot
+from armd.robots.collision import Contact
 from armd.robots.types import FloatArray
+from armd.solvers.world import compiled
+
+from .compiled import clear_walk
 
 CONTACT = 1e-5  # [m]: nearer than this counts as in contact (and the walk's step is at least twice it)
 BISECTIONS = 8  # a contact found is narrowed down to 1/256 of the step that found it
@@ -34,14 +43,21 @@ BISECTIONS = 8  # a contact found is narrowed down to 1/256 of the step that fou
 def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str = "the motion") -> int:
     """Raise :class:`CollisionError` at the first contact along the samples ``position`` (rows,
     at ``times`` [s]) and the straight moves between them; the number of checks made."""
-    world = robot.collision
-    if world is None or not world.pairs:
+    model = robot.collision
+    if model is None or not model.pairs:
         return 0
-    P = np.asarray(position, dtype=float)
-    T = np.asarray(times, dtype=float)
+    world = compiled(model)
+    P = np.ascontiguousarray(position, dtype=float)
+    T = np.ascontiguousarray(times, dtype=float)
+    if not world.coal_pairs:  # every pair a primitive one: the whole walk in one compiled call
+        out = np.empty(P.shape[1] + 3)
+        p = int(clear_walk(world.shapes, T, P, model.travel, CONTACT, BISECTIONS, out))
+        if p >= 0:
+            _contact(what, world.pairs[int(world.compiled_pairs[p])], out[3:], float(out[0]), out[2] == 1.0)
+        return int(out[1])
     s = np.zeros(len(P))  # the travel bound [m] from the first sample to each
     if len(P) > 1:
-        np.cumsum(np.abs(np.diff(P, axis=0)) @ world.travel, out=s[1:])
+        np.cumsum(np.abs(np.diff(P, axis=0)) @ model.travel, out=s[1:])
     end = float(s[-1])
 
     def point(at: float) -> tuple[FloatArray, float]:
@@ -69,17 +85,20 @@ def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str
                     else:
                         lo = mid
                 q, t = point(hi)
-            where = "at its start" if at == 0.0 else f"at t = {t:.4f} s"
-            raise CollisionError(
-                f"{what} puts {pair.first} and {pair.second} in contact {where} "
-                f"(q = [{', '.join(f'{x:.4f}' for x in q)}] rad)",
-                pair=(pair.first, pair.second),
-                time=t,
-            )
+            _contact(what, pair, q, t, at == 0.0)
         if at + d >= end:
             return checks
         last_clear = at
         at = min(at + max(d, 2.0 * CONTACT), end)
+
+
+def _contact(what: str, pair: Contact, q: FloatArray, t: float, start: bool) -> NoReturn:
+    where = "at its start" if start else f"at t = {t:.4f} s"
+    raise CollisionError(
+        f"{what} puts {pair.first} and {pair.second} in contact {where} (q = [{', '.join(f'{x:.4f}' for x in q)}] rad)",
+        pair=(pair.first, pair.second),
+        time=t,
+    )
 
 
 def clear_move(robot: Robot, a: FloatArray, b: FloatArray) -> bool:

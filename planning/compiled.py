@@ -8,7 +8,10 @@ in call overhead rather than arithmetic. Two compiled loops do the work:
   expressions in the same order as Ruckig's ``at_time``, and the forward-difference jerk;
 * :func:`all_clear`: True when every sample is finite and inside every limit (box,
   coupled, velocity, acceleration, jerk, actuator angle and command ranges) with a margin,
-  writing the actuator commands as it goes.
+  writing the actuator commands as it goes;
+* :func:`clear_walk`: the clearance walk of :func:`planning.clearance.check_clear` along a
+  trajectory's samples, each check the compiled collision stage's (:mod:`armd.solvers.collide`),
+  where every pair of the arm's world is a primitive one.
 
 ``all_clear`` only answers "clearly fine". Anything else (a violation, or a value within a
 hair of a limit) goes to the exact checks of :mod:`planning.checks`, which decide and name
@@ -18,11 +21,14 @@ that the checks would refuse.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
-from armd.solvers.jit import entry
+from armd.solvers.collide import NEAREST, Shapes, check
+from armd.solvers.jit import entry, jit
 
 IntArray = NDArray[np.int64]
 
@@ -137,4 +143,165 @@ def all_clear(
             if cmd < actuators[4, k] or cmd > actuators[5, k]:
                 return False
             commands[i, k] = np.int64(cmd)
+    return True
+
+
+@entry("i8(Shapes, f8[:], f8[:, :], f8[:], f8, i8, f8[:])")
+def clear_walk(
+    shapes: Shapes,
+    T: FloatArray,
+    P: FloatArray,
+    travel: FloatArray,
+    contact: float,
+    bisections: int,
+    out: FloatArray,
+) -> int:
+    """:func:`planning.clearance.check_clear`'s walk along the polyline through the samples ``P``
+    (rows, at times ``T`` [s]) in one call, every pair compiled (``shapes``): the row of
+    ``shapes.pairs`` first found nearer than ``contact`` [m] (narrowed down by ``bisections``),
+    or -1: clear. ``out`` (n + 3,): the time [s] of the contact, the number of checks made,
+    1 if it was found at the start (else 0), and the configuration there."""
+    m, n = P.shape[0], P.shape[1]
+    s = np.zeros(m)  # the travel bound [m] from the first sample to each
+    for k in range(1, m):
+        step = 0.0
+        for j in range(n):
+            step += abs(P[k, j] - P[k - 1, j]) * travel[j]
+        s[k] = s[k - 1] + step
+    end = s[m - 1]
+    Q = np.empty((1, n))
+    index = np.empty(1, dtype=np.int64)
+    distance = np.empty(1)
+    at, last_clear, checks = 0.0, -1.0, 0
+    while True:
+        t = _point(s, T, P, at, Q)
+        check(shapes, Q, NEAREST, index, distance)
+        checks += 1
+        d, pair = distance[0], index[0]
+        if d < contact and pair >= 0:
+            if last_clear >= 0.0:  # somewhere after the last clear check: narrow it down
+                lo, hi = last_clear, at
+                for _ in range(bisections):
+                    mid = 0.5 * (lo + hi)
+                    _point(s, T, P, mid, Q)
+                    check(shapes, Q, NEAREST, index, distance)
+                    checks += 1
+                    if distance[0] < contact and index[0] >= 0:
+                        hi, pair = mid, index[0]
+                    else:
+                        lo = mid
+                t = _point(s, T, P, hi, Q)
+            out[0], out[1], out[2] = t, checks, 1.0 if at == 0.0 else 0.0
+            for j in range(n):
+                out[3 + j] = Q[0, j]
+            return pair
+        if at + d >= end:
+            out[0], out[1], out[2] = T[m - 1], checks, 0.0
+            return -1
+        last_clear = at
+        at = min(at + max(d, 2.0 * contact), end)
+
+
+@jit
+def _point(s: FloatArray, T: FloatArray, P: FloatArray, at: float, Q: FloatArray) -> float:
+    """The configuration a travel ``at`` [m] along the polyline (into ``Q[0]``) and its time [s]
+    (as :func:`planning.clearance.check_clear`'s ``point``)."""
+    m, n = P.shape[0], P.shape[1]
+    k = 0  # the last sample whose travel is at or before ``at`` (searchsorted, right, less one)
+    while k + 1 < m and s[k + 1] <= at:
+        k += 1
+    k = min(k, max(m - 2, 0))
+    if m == 1 or s[k + 1] <= s[k]:
+        for j in range(n):
+            Q[0, j] = P[k, j]
+        return T[k]
+    f = min(max((at - s[k]) / (s[k + 1] - s[k]), 0.0), 1.0)
+    for j in range(n):
+        Q[0, j] = P[k, j] + f * (P[k + 1, j] - P[k, j])
+    return T[k] + f * (T[k + 1] - T[k])
+
+
+@entry("void(f8[:, :, :, :], f8[:], f8[:])")
+def extrema(tables: FloatArray, lo: FloatArray, hi: FloatArray) -> None:
+    """Each dof's lowest and highest position over the segments' phases (``tables`` as
+    :func:`evaluate` takes them) into ``lo`` and ``hi``: each phase's ends, and where its
+    velocity (a quadratic) is zero inside it. (Ruckig's own ``position_extrema`` of a
+    velocity-interface segment reads 0.0 for a joint that never goes there.)"""
+    dofs = tables.shape[1]
+    for d in range(dofs):
+        lo[d], hi[d] = math.inf, -math.inf
+    for s in range(tables.shape[0]):
+        for d in range(dofs):
+            for ph in range(tables.shape[2]):
+                T, j, a0, v0, p0 = (
+                    tables[s, d, ph, 0],
+                    tables[s, d, ph, 1],
+                    tables[s, d, ph, 2],
+                    tables[s, d, ph, 3],
+                    tables[s, d, ph, 4],
+                )
+                if T <= 0.0 and ph < tables.shape[2] - 1:
+                    continue  # (a zero-length phase: padding in front, or where the next one starts)
+                _extend(d, p0, lo, hi)
+                _extend(d, p0 + T * (v0 + T * (a0 / 2 + T * j / 6)), lo, hi)
+                # v(h) = v0 + a0 h + j h^2 / 2 = 0 for h in (0, T)
+                if j != 0.0:
+                    disc = a0 * a0 - 2.0 * j * v0
+                    if disc >= 0.0:
+                        r = math.sqrt(disc)
+                        for h in ((-a0 + r) / j, (-a0 - r) / j):
+                            if 0.0 < h < T:
+                                _extend(d, p0 + h * (v0 + h * (a0 / 2 + h * j / 6)), lo, hi)
+                elif a0 != 0.0:
+                    h = -v0 / a0
+                    if 0.0 < h < T:
+                        _extend(d, p0 + h * (v0 + h * a0 / 2), lo, hi)
+
+
+@jit
+def _extend(d: int, p: float, lo: FloatArray, hi: FloatArray) -> None:
+    lo[d] = min(lo[d], p)
+    hi[d] = max(hi[d], p)
+
+
+@entry("void(f8[:, :, :, :], f8[:], f8[:], i8, f8, f8[:, :], f8[:, :], f8[:, :], f8[:, :], i8)")
+def evaluate_part(
+    tables: FloatArray,
+    seg_starts: FloatArray,
+    seg_durations: FloatArray,
+    n: int,
+    dt: float,
+    reference: FloatArray,
+    P: FloatArray,
+    V: FloatArray,
+    A: FloatArray,
+    row: int,
+) -> None:
+    """:func:`evaluate` at the times ``k * dt`` for k < ``n``, into rows ``row`` on of P, V, A,
+    plus a reference motion ``reference`` (rows: position, velocity, acceleration at time 0,
+    carried on at that acceleration; zeros: none). A tracking cycle's parts, one call each."""
+    times = np.empty(n)
+    for k in range(n):
+        times[k] = k * dt
+    dofs = tables.shape[1]
+    p, v, a, jk = np.empty((n, dofs)), np.empty((n, dofs)), np.empty((n, dofs)), np.empty((n, dofs))
+    evaluate(tables, seg_starts, seg_durations, times, dt, p, v, a, jk)
+    for k in range(n):
+        t = times[k]
+        for d in range(dofs):
+            r0, r1, r2 = reference[0, d], reference[1, d], reference[2, d]
+            P[row + k, d] = p[k, d] + r0 + r1 * t + r2 * (t * t / 2)  # (NumPy's order: the same sums)
+            V[row + k, d] = v[k, d] + r1 + r2 * t
+            A[row + k, d] = a[k, d] + r2
+
+
+@entry("b1(f8[:, :, :, :], f8[:], f8[:], f8)")
+def inside(tables: FloatArray, lower: FloatArray, upper: FloatArray, tol: float) -> bool:
+    """Whether every dof's positions over the segments (:func:`extrema`) stay within
+    [``lower``, ``upper``] to ``tol``."""
+    lo, hi = np.empty(tables.shape[1]), np.empty(tables.shape[1])
+    extrema(tables, lo, hi)
+    for d in range(tables.shape[1]):  # noqa: SIM110 (a loop: compiled code, no generators)
+        if not (lo[d] >= lower[d] - tol and hi[d] <= upper[d] + tol):
+            return False
     return True

@@ -9,6 +9,7 @@ from armd.errors import BadRequest, CollisionError, PlanRejected
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 from armd.solvers import SensorReading, approach_pitch, solve_ik, target_point
+from armd.solvers.world import compiled
 
 
 @dataclass(frozen=True)
@@ -52,7 +53,7 @@ def goal_configuration(robot: Robot, goal: object, seed: FloatArray, field: str 
         if bad:
             raise BadRequest(f"{field} is outside the joint limits: {bad[0].message}", field=field)
         qv = robot.limits.clip(qv)
-        hit = robot.collision.first_contact(qv) if robot.collision is not None else None
+        hit = compiled(robot.collision).first_contact(qv) if robot.collision is not None else None
         if hit is not None:
             raise CollisionError(
                 f"{field}: the joint configuration puts {hit} in contact", pair=(hit.first, hit.second), field=field

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import coal
 import numpy as np
 import pinocchio as pin
+from numpy.typing import NDArray
 
 from .types import FloatArray
 
@@ -231,6 +232,10 @@ class CollisionModel:
             if result.isCollision():
                 return self.pairs[k]
         return None  # (not reached: computeCollisions said there was one)
+
+    def colliding(self, Q: FloatArray) -> NDArray[np.bool_]:
+        """Whether each row of ``Q`` (m, n) [rad] has a pair in collision."""
+        return np.array([self.first_contact(q) is not None for q in np.asarray(Q, dtype=float)], dtype=bool)
 
     def contacts(self, q: FloatArray) -> list[Contact]:
         """Every pair in collision at ``q`` [rad]."""

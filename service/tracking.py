@@ -43,6 +43,7 @@ from armd.planning import JointState, Trajectory
 from armd.planning.online import track_step
 from armd.robots import Robot
 from armd.robots.types import FloatArray
+from armd.solvers.world import compiled
 
 from .state import Known, where_the_adapter_is
 from .track_message import DEADMAN, TRACK_BYTES, TrackPut, parse, session_of
@@ -498,7 +499,7 @@ class Tracker:
             )
             q = clipped
         world = self.arm.collision
-        contact = world.first_contact(q) if world is not None else None
+        contact = compiled(world).first_contact(q) if world is not None else None
         if contact is not None:
             self.say(
                 "collision",

@@ -23,7 +23,6 @@ from numpy.typing import NDArray
 from armd.errors import BadRequest
 from armd.robots import Robot
 from armd.robots.angles import wrap_array
-from armd.robots.collision import CollisionModel
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_many
@@ -32,6 +31,7 @@ from .geometric import BRANCH_NAMES
 from .ik import DEFAULT_TOLERANCE, FREE_PITCHES, MAX_TOLERANCE, _closest, solve_ik
 from .result import APPROXIMATE, OK, UNREACHABLE, IKResult
 from .target import approach_pitch
+from .world import CompiledWorld, compiled
 
 
 @dataclass(frozen=True)
@@ -210,7 +210,7 @@ def solve_ik_batch(
     _solve_many(arm, refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
     solved = codes != NONE
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
-    world = robot.collision if collisions else None
+    world = compiled(robot.collision) if collisions and robot.collision is not None else None
     if world is not None:  # a colliding answer, or a target under the floor: the single-target path
         good[_touching(world, pts, q, good)] = False
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
@@ -278,7 +278,7 @@ def reachable(
     good: NDArray[np.bool_] = (codes != NONE) & (err <= tolerance)
     if pitch is not None:
         good &= codes == EXACT
-    world = robot.collision
+    world = compiled(robot.collision) if robot.collision is not None else None
     if world is not None:  # clear of the arm itself, the floor and the obstacles (else solve_ik's word)
         under = _under(world, pts)
         for i in _touching(world, pts, q, good):
@@ -286,13 +286,16 @@ def reachable(
     return good
 
 
-def _under(world: CollisionModel, pts: FloatArray) -> NDArray[np.bool_]:
+def _under(world: CompiledWorld, pts: FloatArray) -> NDArray[np.bool_]:
     """Which targets lie under the floor (none without one)."""
     return pts[:, 2] < world.ground if world.ground is not None else np.zeros(len(pts), dtype=bool)
 
 
-def _touching(world: CollisionModel, pts: FloatArray, q: FloatArray, rows: NDArray[np.bool_]) -> list[int]:
+def _touching(world: CompiledWorld, pts: FloatArray, q: FloatArray, rows: NDArray[np.bool_]) -> list[int]:
     """Of the ``rows`` answered, those whose target is under the floor or whose answer ``q[i]``
     touches something: the single-target path's to answer (it looks for a clear branch)."""
     under = _under(world, pts)
-    return [i for i in np.flatnonzero(rows).tolist() if under[i] or world.first_contact(q[i]) is not None]
+    asked = np.flatnonzero(rows & ~under)
+    hit = np.zeros(len(pts), dtype=bool)
+    hit[asked] = world.colliding(q[asked])  # (the rows in one compiled call)
+    return np.flatnonzero(rows & (under | hit)).tolist()

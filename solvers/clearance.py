@@ -23,23 +23,22 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from armd.robots.angles import wrap
-from armd.robots.collision import GROUND, CollisionModel, Contact
+from armd.robots.collision import GROUND, Contact
 from armd.robots.types import FloatArray
 
 from .arm import ArmState
 from .result import COLLISION, UNREACHABLE, Branch, IKResult
+from .world import World
 
 BISECTIONS = 12  # halvings of the segment from a clear configuration toward a colliding one
 FREE_STARTS = 8  # clear atlas configurations tried for an unreachable target's answer
 PITCH_STEPS = 24  # with a free pitch: the pitches tried, every 2 pi / PITCH_STEPS
 
-_masks: weakref.WeakKeyDictionary[CollisionModel, np.ndarray] = weakref.WeakKeyDictionary()
+_masks: weakref.WeakKeyDictionary[World, np.ndarray] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
-def clear(
-    arm: ArmState, world: CollisionModel, result: IKResult, alternatives: Callable[[], Iterable[Branch]]
-) -> IKResult:
+def clear(arm: ArmState, world: World, result: IKResult, alternatives: Callable[[], Iterable[Branch]]) -> IKResult:
     """``result`` made collision-free in ``world`` (the module's doc; the robot's own, which
     is not always ``arm.robot``'s: a copy of a robot shares its solver state). ``alternatives()``:
     other configurations on the target, preferred first (the closed form's at other pitches,
@@ -95,7 +94,7 @@ def _chosen(arm: ArmState, result: IKResult, chosen: Branch, others: list[Branch
     )
 
 
-def _touch(arm: ArmState, world: CollisionModel, q: FloatArray) -> Contact | None:
+def _touch(arm: ArmState, world: World, q: FloatArray) -> Contact | None:
     """The colliding pair at ``q``, counting the tool point under the ground as one."""
     hit = world.first_contact(q)
     if hit is None and world.ground is not None and float(arm.robot.fk(q)[2]) < world.ground:
@@ -103,18 +102,20 @@ def _touch(arm: ArmState, world: CollisionModel, q: FloatArray) -> Contact | Non
     return hit
 
 
-def _clear_atlas(arm: ArmState, world: CollisionModel) -> np.ndarray:
+def _clear_atlas(arm: ArmState, world: World) -> np.ndarray:
     """Which of the arm's atlas configurations are clear in ``world`` (made once per world)."""
     with _lock:
         mask = _masks.get(world)
     if mask is None or len(mask) != len(arm.atlas.q):
-        mask = np.array([_touch(arm, world, q) is None for q in arm.atlas.q], dtype=bool)
+        mask = ~world.colliding(arm.atlas.q)  # (the tool point under the ground too, as _touch)
+        if world.ground is not None:
+            mask &= arm.atlas.p[:, 2] >= world.ground
         with _lock:
             _masks[world] = mask
     return mask
 
 
-def clear_starts(arm: ArmState, world: CollisionModel, point: FloatArray, count: int) -> list[FloatArray]:
+def clear_starts(arm: ArmState, world: World, point: FloatArray, count: int) -> list[FloatArray]:
     """The ``count`` clear atlas configurations whose tool points are nearest ``point``."""
     rows = np.flatnonzero(_clear_atlas(arm, world))
     d = np.einsum("ij,ij->i", arm.atlas.p[rows] - point, arm.atlas.p[rows] - point)
@@ -124,7 +125,7 @@ def clear_starts(arm: ArmState, world: CollisionModel, point: FloatArray, count:
     return [arm.atlas.q[r] for r in rows[np.argsort(d, kind="stable")]]
 
 
-def closest_clear(arm: ArmState, world: CollisionModel, point: FloatArray, toward: FloatArray) -> FloatArray | None:
+def closest_clear(arm: ArmState, world: World, point: FloatArray, toward: FloatArray) -> FloatArray | None:
     """A clear configuration within limits with its tool point near ``point``: from each of the
     clear atlas configurations nearest it, the farthest clear point found toward ``toward`` (a
     configuration that collides) by bisection; the best of them. None: no clear configuration."""
@@ -146,7 +147,7 @@ def closest_clear(arm: ArmState, world: CollisionModel, point: FloatArray, towar
     return best
 
 
-def _unreachable(arm: ArmState, world: CollisionModel, result: IKResult, hit: Contact) -> IKResult:
+def _unreachable(arm: ArmState, world: World, result: IKResult, hit: Contact) -> IKResult:
     q = closest_clear(arm, world, result.target, result.q)
     if q is None:
         return result._replace(

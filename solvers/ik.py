@@ -36,7 +36,6 @@ import numpy as np
 from armd.errors import BadRequest
 from armd.robots import Robot
 from armd.robots.angles import wrap
-from armd.robots.collision import CollisionModel
 from armd.robots.types import FloatArray
 
 from .analytic import EXACT, NONE, solve_point
@@ -47,6 +46,7 @@ from .geometric import BRANCH_NAMES
 from .lm import refine_branches, refine_chain, solve_chain
 from .result import APPROXIMATE, COLLISION, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
+from .world import World, compiled
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
@@ -117,7 +117,7 @@ def solve_ik(
         result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
         result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
-    world = robot.collision if collisions else None
+    world = compiled(robot.collision) if collisions and robot.collision is not None else None
     if world is not None:
         result = clear(arm, world, result, lambda: _alternatives(arm, world, point, pitch, ref, tolerance))
     if quantise:
@@ -414,7 +414,7 @@ def _closest_result(
 
 
 def _alternatives(
-    arm: ArmState, world: CollisionModel, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
+    arm: ArmState, world: World, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
 ) -> Iterator[Branch]:
     """Configurations on ``point`` other than the first answer's branches, preferred first, for
     when they all collide (:func:`solvers.clearance.clear`): with a free pitch, the closed form's

@@ -65,6 +65,7 @@ TOUCH = 1e-12  # [m]: a distance at or below this is a contact (coal's collision
 GAP = 1e-10  # [m]: GJK stops when its upper and lower bounds on the distance are this close
 ITERATIONS = 128  # GJK's iterations, at most (a box pair takes a handful, a cylinder pair about 10-30)
 TINY = 1e-15  # [m]: a point of the Minkowski difference this near the origin is the origin
+OVERLAP = 1e-9  # [m]: GJK ending this near the origin with no separating plane found: a contact
 
 # (Every quotient is np.divide's, which never raises: a function that may raise Python's
 # ZeroDivisionError keeps Numba from dropping its callers' reference counting of their arrays,
@@ -367,10 +368,10 @@ def gjk(
         if lower > stop:
             return lower
         if vn - lower <= GAP:
-            return vn
+            return _settled(vn, lower)
         for r in range(n):  # w is in the simplex already: nothing left to gain (rounding)
             if W[r, 0] == wx and W[r, 1] == wy and W[r, 2] == wz:
-                return vn
+                return _settled(vn, lower)
         W[n, 0], W[n, 1], W[n, 2] = wx, wy, wz
         n += 1
         # the simplex's point nearest the origin, and the vertices it needs
@@ -406,9 +407,18 @@ def gjk(
                 kept += 1
         n = kept
         if it > 0 and pp >= vv:  # no progress (rounding): the best point found stands
-            return vn
+            return _settled(vn, lower)
         vx, vy, vz, vv = px, py, pz, pp
-    return math.sqrt(vv)
+    return _settled(math.sqrt(vv), lower)
+
+
+@jit
+def _settled(upper: float, lower: float) -> float:
+    """GJK's answer from its bounds on the distance: ``upper`` (a point of the Minkowski
+    difference), unless no separating plane was found (``lower`` still 0) and that point is
+    within :data:`OVERLAP` of the origin: overlapping cores whose simplex came to the origin
+    only to rounding (a box deep in a box ended at 3e-12 m, above TOUCH): 0, in contact."""
+    return 0.0 if lower <= 0.0 and upper <= OVERLAP else upper
 
 
 # -- a pair ---------------------------------------------------------------------------------------

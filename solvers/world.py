@@ -13,23 +13,26 @@ joint's link), :attr:`CompiledWorld.on_coal` which pairs.
 :class:`CompiledWorld` answers as the collision model does (:meth:`~CompiledWorld.first_contact`,
 :meth:`~CompiledWorld.contacts`, :meth:`~CompiledWorld.clearance`), the same pairs in the same
 order: the compiled pairs by one compiled call, the pairs on coal through Pinocchio after it,
-merged in the model's order. Not yet what the solver and the planner call (issue 36).
+merged in the model's order. :func:`compiled` keeps one per collision model: what the solver,
+the planner and the tracker check with.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from typing import NamedTuple
+import threading
+from typing import NamedTuple, Protocol
 
 import coal
 import numpy as np
 import pinocchio as pin
+from numpy.typing import NDArray
 
 from armd.robots.collision import CollisionModel, Contact
 from armd.robots.types import FloatArray
 
-from .collide import Shapes, first_collision, min_distance, pair_distances
+from .collide import Shapes, first_collision, first_collisions, min_distance, pair_distances
 from .narrowphase import BOX, CAPSULE, CYLINDER, HALFSPACE, SIZE, SPHERE, TOUCH
 from .tree import FIXED, PRISMATIC, REVOLUTE, Tree
 
@@ -47,6 +50,22 @@ JOINTS = {
     "JointModelPrismaticUnaligned",
     "JointModelMimic",
 }
+
+
+class World(Protocol):
+    """What the solver checks an answer against: an arm's world, its floor and its pairs (a
+    :class:`~armd.robots.collision.CollisionModel` through coal, or its :class:`CompiledWorld`)."""
+
+    @property
+    def ground(self) -> float | None: ...
+
+    def first_contact(self, q: FloatArray) -> Contact | None: ...
+
+    def colliding(self, Q: FloatArray) -> NDArray[np.bool_]: ...
+
+    def contacts(self, q: FloatArray) -> list[Contact]: ...
+
+    def clearance(self, q: FloatArray) -> tuple[float, Contact | None]: ...
 
 
 class Unsupported(NamedTuple):
@@ -201,6 +220,11 @@ class CompiledWorld:
             )
 
     @property
+    def ground(self) -> float | None:
+        """The floor's height [m] (None: none), as the collision model's."""
+        return self.world.ground
+
+    @property
     def pairs(self) -> list[Contact]:
         """Every pair checked, in the collision model's order (the compiled ones and coal's)."""
         return self.world.pairs
@@ -227,6 +251,20 @@ class CompiledWorld:
                     first = k
                     break
         return self.world.pairs[first] if first < len(self.world.pairs) else None
+
+    def colliding(self, Q: FloatArray) -> NDArray[np.bool_]:
+        """Whether each row of ``Q`` (m, n) [rad] has a pair in collision: one compiled call
+        (the pairs on coal after it, for the rows it found clear)."""
+        Q = np.ascontiguousarray(Q, dtype=np.float64)
+        out = np.full(len(Q), -1, dtype=np.int64)
+        if len(self.shapes.pairs) and len(Q):
+            first_collisions(self.shapes, Q, out)
+        hit = out >= 0
+        if self.coal_pairs:
+            for i in np.flatnonzero(~hit).tolist():
+                gdata = self._coal(Q[i])
+                hit[i] = any(pin.computeCollision(self.world.geometry, gdata, k) for k in self.coal_pairs)
+        return hit
 
     def contacts(self, q: FloatArray) -> list[Contact]:
         """Every pair in collision at ``q`` [rad] (as :meth:`CollisionModel.contacts`)."""
@@ -265,3 +303,20 @@ class CompiledWorld:
 def compile_world(world: CollisionModel) -> CompiledWorld:
     """``world`` for the compiled stage (about a millisecond: build it once per world)."""
     return CompiledWorld(world)
+
+
+_compiling = threading.Lock()
+
+
+def compiled(world: CollisionModel) -> CompiledWorld:
+    """``world``'s :class:`CompiledWorld`, built on first use and kept with ``world`` (on it: a
+    weak map would keep it for ever, the compiled world holding its model; a world with other
+    obstacles is another collision model, compiled anew)."""
+    got: CompiledWorld | None = world.__dict__.get("_compiled_world")
+    if got is None:
+        with _compiling:
+            got = world.__dict__.get("_compiled_world")
+            if got is None:
+                got = CompiledWorld(world)
+                world.__dict__["_compiled_world"] = got
+    return got

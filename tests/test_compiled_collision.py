@@ -36,10 +36,10 @@ from hypothesis import strategies as st
 from test_collision import among_obstacles
 
 from armd import robots
-from armd.robots.collision import CollisionModel
+from armd.robots.collision import CollisionModel, Obstacle
 from armd.solvers.collide import first_collision, first_collisions, min_distance, min_distances, primitive_distance
 from armd.solvers.narrowphase import BOX, CAPSULE, CYLINDER, HALFSPACE, KINDS, SPHERE, TOUCH
-from armd.solvers.world import CompiledWorld, compile_world, primitive, tree_of
+from armd.solvers.world import CompiledWorld, compile_world, compiled, primitive, tree_of
 
 ARMS = robots.names()
 EXACT = 1e-9  # [m]: compiled distances against coal's at a 1e-10 GJK gap
@@ -577,3 +577,39 @@ def test_what_was_seen() -> None:
     for key, value in sorted(SEEN.items()):
         print(f"{key}: {value:.3g}")
     assert all(v <= EXACT for k, v in SEEN.items() if "1e-10 gap" in k and k.endswith("[m]"))
+
+
+def test_a_shape_deep_inside_another_is_in_contact() -> None:
+    """Every primitive (a sphere, capsule, box or cylinder a few centimetres across) anywhere
+    well inside a large one (or on its centre) in any pose: in contact. (GJK came to the origin only to rounding,
+    3e-12 m, and a gripper deep in a crate was called clear, where coal said -0.04 m.)"""
+    rng = np.random.default_rng(3612)
+    solids = [k for k in SHAPES if k != HALFSPACE]
+    for _ in range(4_000):
+        outer, inner = int(rng.choice(solids)), int(rng.choice(solids))
+        sizes = np.zeros((2, 4))
+        sizes[0, :3] = rng.uniform(0.2, 0.3, size=3)
+        sizes[1, :3] = rng.uniform(0.005, 0.03, size=3)
+        kinds = np.array([outer, inner], dtype=np.int64)
+        shapes = [_coal_shape(int(k), sizes[i]) for i, k in enumerate(kinds)]
+        sizes = np.ascontiguousarray([primitive(s)[1] for s in shapes])  # type: ignore[index]
+        R = np.array([_rotation(rng), _rotation(rng)])
+        at = rng.uniform(-0.3, 0.3, size=3)
+        p = np.array([at, at + (rng.uniform(-0.05, 0.05, size=3) if rng.random() < 0.7 else 0.0)])  # (or concentric)
+        M = np.ascontiguousarray([pin.SE3(R[i], p[i]).homogeneous for i in range(2)])
+        d = primitive_distance(kinds, sizes, M)
+        assert d <= TOUCH, (KINDS[outer], KINDS[inner], d)
+        d = primitive_distance(kinds[::-1].copy(), sizes[::-1].copy(), M[::-1].copy())
+        assert d <= TOUCH, (KINDS[inner], KINDS[outer], d)
+
+
+def test_a_gripper_deep_in_a_crate_is_in_contact() -> None:
+    """The insomniac's gripper reaching into a crate 0.08 m across (coal: 0.04 m deep): the
+    compiled world names the pair, as coal does."""
+    arm = robots.load("insomniac")
+    crate = Obstacle("crate", "box", (0.08, 0.08, 0.08), (0.26, 0.0, 0.12))
+    world = arm.collision.with_obstacles([crate])  # type: ignore[union-attr]
+    q = np.array([0.0, 0.99575131130219974, -1.2651697300669531, -1.3013779079374548, -0.64708221602355276])
+    assert world.clearance(q)[0] < -0.03
+    assert compiled(world).first_contact(q) == world.first_contact(q) == ("gripper", "crate")
+    assert compiled(world).colliding(q[None, :]).tolist() == [True]
