@@ -38,6 +38,7 @@ from armd.robots import Robot
 from armd.robots.types import FloatArray
 
 from .clearance import check_clear
+from .compiled import evaluate_part
 from .ruckig_path import Limits, RuckigPath, _otg, _segment, joint_path, stop_path, whole_cycles
 from .state import JointState
 from .trajectory import Trajectory, build
@@ -65,6 +66,12 @@ class _Path:
         self.path = path
         self.reference = reference
         self.duration = path.duration if reference is None else math.inf
+        # (the reference's rows as the compiled sampling takes them: zeros, none)
+        self.motion = (
+            np.zeros((3, path.nq))
+            if reference is None
+            else np.array([reference.position, reference.velocity, reference.acceleration], dtype=float)
+        )
 
     def at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         p, v, a = self.path.at(t)
@@ -79,16 +86,6 @@ class _Path:
 
     def state(self, t: float) -> JointState:
         return JointState(*self.at(t))
-
-    def sample(self, times: FloatArray, dt: float) -> tuple[FloatArray, FloatArray, FloatArray]:
-        P, V, A, _ = self.path.sample(np.minimum(times, self.path.duration), dt)
-        ref = self.reference
-        if ref is not None:
-            t = times[:, None]
-            P = P + ref.position + ref.velocity * t + ref.acceleration * (t * t / 2)
-            V = V + ref.velocity + ref.acceleration * t
-            A = A + ref.acceleration
-        return P, V, A
 
 
 Part = tuple[_Path, int | None]  # a path and how many of its cycles (None: to its end)
@@ -185,21 +182,20 @@ def _chain(robot: Robot, parts: Sequence[Part], dt: float, rate_hz: float) -> Tr
     """The parts one after the other, sampled every ``dt``: each for its cycles (the next one
     starts at the state it reaches), the last to its end; checked by the gate
     (:func:`planning.trajectory.build`): :class:`LimitError` if a sample breaks a limit."""
-    Ps, Vs, As = [], [], []
+    counts = [
+        whole_cycles(path.duration, dt) + 1 if k == len(parts) - 1 or cycles is None else cycles
+        for k, (path, cycles) in enumerate(parts)
+    ]
+    total = sum(counts)
+    P, V, A = np.empty((total, robot.nq)), np.empty((total, robot.nq)), np.empty((total, robot.nq))
     starts: list[tuple[float, _Path]] = []
-    t0 = 0.0
-    for k, (path, cycles) in enumerate(parts):
-        last = k == len(parts) - 1
-        n = whole_cycles(path.duration, dt) + 1 if last or cycles is None else cycles
-        times = np.arange(n, dtype=float) * dt
-        P, V, A = path.sample(times, dt)
-        Ps.append(P)
-        Vs.append(V)
-        As.append(A)
-        starts.append((t0, path))
-        t0 += n * dt
-    P, V, A = np.vstack(Ps), np.vstack(Vs), np.vstack(As)
-    times = np.arange(len(P), dtype=float) * dt
+    row = 0
+    for (path, _), n in zip(parts, counts, strict=True):
+        ruck = path.path
+        evaluate_part(ruck.tables, ruck.starts, ruck.durations, n, dt, path.motion, P, V, A, row)
+        starts.append((row * dt, path))
+        row += n
+    times = np.arange(total, dtype=float) * dt
 
     def at(t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         for begin, path in reversed(starts):

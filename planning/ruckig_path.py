@@ -31,7 +31,7 @@ from armd.errors import BadRequest, PlannerError
 from armd.robots import Robot
 from armd.robots.types import FloatArray
 
-from .compiled import evaluate
+from .compiled import evaluate, inside
 from .state import JointState
 
 
@@ -68,7 +68,7 @@ _limits: dict[tuple[int, float], tuple[Robot, Limits]] = {}
 class RuckigPath:
     """A chain of Ruckig segments, evaluated at any time [s] from the start."""
 
-    def __init__(self, segments: Sequence[ruckig.Trajectory], nq: int) -> None:
+    def __init__(self, segments: Sequence[ruckig.Trajectory], nq: int, tables: FloatArray | None = None) -> None:
         self.segments = list(segments)
         self.nq = nq
         durations = [s.duration for s in self.segments]
@@ -78,7 +78,7 @@ class RuckigPath:
         self.durations = np.array(durations)
         self.starts = np.array(starts)
         self.duration = float(sum(durations))
-        self._tables: FloatArray | None = None
+        self._tables: FloatArray | None = tables  # (the segments' own, when the caller read them already)
 
     def at(self, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Position [rad], velocity [rad/s], acceleration [rad/s^2] at time ``t`` (clamped to the path)."""
@@ -110,27 +110,33 @@ class RuckigPath:
         return self._tables
 
     def _phase_tables(self) -> FloatArray:
-        profiles = [seg.profiles[0] for seg in self.segments]
-        if all(p.brake.duration <= 0 and p.accel.duration <= 0 for ps in profiles for p in ps):
-            flat: list[float] = []  # the common case: seven phases per dof, read as five lists each
-            for ps in profiles:
-                for p in ps:
-                    flat += p.t
-                    flat += p.j
-                    flat += p.a[:7]
-                    flat += p.v[:7]
-                    flat += p.p[:7]
-            # (contiguous, as the general case below: one compiled specialisation, not two)
-            return np.ascontiguousarray(np.array(flat).reshape(len(profiles), self.nq, 5, 7).transpose(0, 1, 3, 2))
-        rows = [[_phases(prof) for prof in ps] for ps in profiles]
-        width = max(len(r) for seg in rows for r in seg)
-        flat = []
-        for seg in rows:
-            for r in seg:  # zero-length phases first: they start where the next one does
-                flat += [0.0] * (5 * (width - len(r)))
-                for row in r:
-                    flat += row
-        return np.array(flat).reshape(len(rows), self.nq, width, 5)
+        return phase_tables(self.segments, self.nq)
+
+
+def phase_tables(segments: Sequence[Any], nq: int) -> FloatArray:
+    """Every segment's phase table, padded to one width: (segments, dofs, phases, 5), rows
+    (duration, jerk, a0, v0, p0), what :func:`planning.compiled.evaluate` takes."""
+    profiles = [seg.profiles[0] for seg in segments]
+    if all(p.brake.duration <= 0 and p.accel.duration <= 0 for ps in profiles for p in ps):
+        flat: list[float] = []  # the common case: seven phases per dof, read as five lists each
+        for ps in profiles:
+            for p in ps:
+                flat += p.t
+                flat += p.j
+                flat += p.a[:7]
+                flat += p.v[:7]
+                flat += p.p[:7]
+        # (contiguous, as the general case below: one compiled specialisation, not two)
+        return np.ascontiguousarray(np.array(flat).reshape(len(profiles), nq, 5, 7).transpose(0, 1, 3, 2))
+    rows = [[_phases(prof) for prof in ps] for ps in profiles]
+    width = max(len(r) for seg in rows for r in seg)
+    flat = []
+    for seg in rows:
+        for r in seg:  # zero-length phases first: they start where the next one does
+            flat += [0.0] * (5 * (width - len(r)))
+            for row in r:
+                flat += row
+    return np.array(flat).reshape(len(rows), nq, width, 5)
 
 
 def _phases(prof: ruckig.Profile) -> list[tuple[float, float, float, float, float]]:
@@ -204,18 +210,21 @@ def calculate(otg: ruckig.Ruckig, inp: ruckig.InputParameter, traj: ruckig.Traje
         raise PlannerError(f"Ruckig could not compute the segment: {result}")
 
 
-def _within(traj: ruckig.Trajectory, robot: Robot, dt: float) -> bool:
-    """The segment's position extrema stay inside the box limits, and its samples inside the
-    coupled limits."""
+def _within(traj: Any, robot: Robot, dt: float) -> FloatArray | None:
+    """The segment's phase tables (:func:`phase_tables`) if its positions stay inside the box
+    limits (its extrema, exactly) and its samples inside the coupled limits; else None."""
+    tables = phase_tables([traj], robot.nq)
     lim = robot.limits
-    extrema = traj.position_extrema
-    if not (lim.in_box(np.array([e.min for e in extrema])) and lim.in_box(np.array([e.max for e in extrema]))):
-        return False
+    if not inside(tables, lim.lower, lim.upper, 1e-9):
+        return None
     if lim.coupled:
-        for t in np.arange(0.0, traj.duration + dt / 2, dt).tolist():
-            if not lim.contains(np.array(traj.at_time(min(t, traj.duration))[0]), tol=1e-9):
-                return False
-    return True
+        n = whole_cycles(traj.duration, dt) + 1
+        P, V, A, J = (np.empty((n, robot.nq)) for _ in range(4))
+        zero = np.zeros(1)
+        evaluate(tables, zero, np.array([traj.duration]), np.arange(n, dtype=float) * dt, dt, P, V, A, J)
+        if not lim.contains_batch(P).all():
+            return None
+    return tables
 
 
 def _pass_velocity(prev: FloatArray, via: FloatArray, nxt: FloatArray, limits: Limits) -> FloatArray:
@@ -321,59 +330,78 @@ def joint_path(robot: Robot, start: JointState, goals: Sequence[FloatArray], spe
     limits = Limits.of(robot, speed)
     otg = _otg(robot.nq, dt)
     segments: list[ruckig.Trajectory] = []
+    tables: list[FloatArray | None] = []  # (each segment's, where read already)
     state = start
     prev = start.position
+    direct: ruckig.Trajectory | None = None
     if start.moving:  # from a moving state: straight on if that stays inside the limits
         first_v = np.zeros(robot.nq) if len(goals) == 1 else _pass_velocity(prev, goals[0], goals[1], limits)
         faster = bool(
             np.any(np.abs(start.velocity) > limits.velocity) or np.any(np.abs(start.acceleration) > limits.acceleration)
         )
         try:
-            direct: ruckig.Trajectory | None = _segment(otg, start, goals[0], first_v, limits)
+            direct = _segment(otg, start, goals[0], first_v, limits)
         except (PlannerError, BadRequest):
             if not faster:
                 raise
             # moving faster than ``speed`` allows, and braking within the slowed limits is more
             # than Ruckig can time (at speed 0.01, hours): brake with the full limits instead
             direct = None
-        if direct is None or not _within(direct, robot, dt):  # brake to rest first, then go (never through a limit)
-            brake = _brake(otg, robot, start, dt)
+        direct_tables = _within(direct, robot, dt) if direct is not None else None
+        if direct_tables is None:  # brake to rest first, then go (never through a limit)
+            direct = None
+            brake, brake_tables = _brake(otg, robot, start, dt)
             segments.append(brake)
+            tables.append(brake_tables)
             p, _, _ = brake.at_time(brake.duration)
             state = JointState.at_rest(np.array(p))
             prev = state.position
     for k, goal in enumerate(goals):
         last = k == len(goals) - 1
-        v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
-        traj = _segment(otg, state, goal, v, limits)
-        if not last and any(v.tolist()) and not _within(traj, robot, dt):  # passing would overshoot: stop there
-            v = np.zeros(robot.nq)
+        if k == 0 and direct is not None:  # (straight on from the moving start: computed above, and inside)
+            segments.append(direct)
+            tables.append(direct_tables)
+            traj = direct
+        else:
+            v = np.zeros(robot.nq) if last else _pass_velocity(prev, goal, goals[k + 1], limits)
             traj = _segment(otg, state, goal, v, limits)
-        segments.append(traj)
+            held = None
+            if not last and any(v.tolist()):
+                held = _within(traj, robot, dt)
+                if held is None:  # passing would overshoot: stop there
+                    traj = _segment(otg, state, goal, np.zeros(robot.nq), limits)
+            segments.append(traj)
+            tables.append(held)
         if not last:  # where the next segment starts
             p, vel, acc = traj.at_time(traj.duration)
             state = JointState(np.array(p), np.array(vel), np.array(acc))
         prev = goal
-    return RuckigPath(segments, robot.nq)
+    known = tables[0] if len(tables) == 1 else None
+    return RuckigPath(segments, robot.nq, known)
 
 
-def _brake(otg: ruckig.Ruckig, robot: Robot, start: JointState, dt: float) -> ruckig.Trajectory:
+def _brake(
+    otg: ruckig.Ruckig, robot: Robot, start: JointState, dt: float
+) -> tuple[ruckig.Trajectory, FloatArray | None]:
     """To rest, each joint as fast as its (full) limits allow. The fastest stop is not always
     the shortest: where it would cross a position limit, stop instead at the nearest point
-    inside the limits, still unsynchronised."""
+    inside the limits, still unsynchronised. With its phase tables, if they were read."""
     limits = Limits.of(robot, 1.0)
     zero = np.zeros(robot.nq)
     traj = _segment(otg, start, start.position, zero, limits, interface_velocity=True)
-    if _within(traj, robot, dt):
-        return traj
+    tables = _within(traj, robot, dt)
+    if tables is not None:
+        return traj, tables
     end = robot.limits.clip(np.array(traj.at_time(traj.duration)[0]))
     held = _segment(otg, start, end, zero, limits, synchronise=False)
-    return held if _within(held, robot, dt) else traj  # (the safety gate reports the latter)
+    tables = _within(held, robot, dt)
+    return (held, tables) if tables is not None else (traj, None)  # (the safety gate reports the latter)
 
 
 def stop_path(robot: Robot, start: JointState, dt: float) -> RuckigPath:
     """From ``start`` to rest as fast as the (full) limits allow, jerk-limited."""
-    return RuckigPath([_brake(_otg(robot.nq, dt), robot, start, dt)], robot.nq)
+    traj, tables = _brake(_otg(robot.nq, dt), robot, start, dt)
+    return RuckigPath([traj], robot.nq, tables)
 
 
 def whole_cycles(duration: float, dt: float) -> int:
