@@ -9,12 +9,16 @@ configurations is valid when the clearance walk (:func:`planning.clearance.check
 finds the straight joint move between them clear: the same certificate as every plan's, so
 the path found is clear along its whole length, not only at the configurations OMPL checked.
 The path is returned as its configurations (the start first, the goal last); the planner
-times it through them (:func:`planning.plan`).
+times it through them (:func:`planning.plan`). OMPL's own messages go to armd's log at debug
+(:class:`_Chatter`), never to the terminal.
 """
 
 from __future__ import annotations
 
+import logging
 import math
+import os
+import tempfile
 import threading
 
 import numpy as np
@@ -24,6 +28,7 @@ from ompl import util as ou
 
 from armd.robots import Robot
 from armd.robots.types import FloatArray
+from armd.solvers.world import compiled
 
 from .clearance import clear_move
 
@@ -31,7 +36,36 @@ MARGIN = 0.002  # [m]: the clearance a valid configuration keeps
 TIME = 1.0  # [s]: the longest the planner searches
 SHORTENING = 0.01  # [s]: the time the path simplifier is given
 
-ou.setLogLevel(ou.LogLevel.LOG_WARN)  # (OMPL logs every solve at INFO on stderr)
+log = logging.getLogger(__name__)
+
+
+class _Chatter:
+    """OMPL's messages (its warnings and errors: "RRTConnect: ... no solution", written on the
+    process's stderr by default, on a user's terminal) into armd's log at debug instead. OMPL's
+    Python binding cannot take a handler written in Python, so its file handler writes to a file
+    of our own (unlinked at once: nothing is left behind), read after each search, under the
+    search's lock, and emptied."""
+
+    def __init__(self) -> None:
+        fd, path = tempfile.mkstemp(prefix="armd-ompl-")
+        self.handler = ou.OutputHandlerFile(path)  # (it opens the file to append: kept open)
+        os.unlink(path)
+        self.file = os.fdopen(fd, "r+b", buffering=0)
+        ou.useOutputHandler(self.handler)
+        ou.setLogLevel(ou.LogLevel.LOG_WARN)  # (at INFO, OMPL says every solve)
+
+    def flush(self) -> None:
+        """What OMPL wrote since the last call, logged (the search's lock held)."""
+        self.file.seek(0)
+        said = self.file.read()
+        if said:
+            for line in said.decode(errors="replace").splitlines():
+                if line.strip():
+                    log.debug("OMPL: %s", line.strip())
+            self.file.truncate(0)
+
+
+_chatter = _Chatter()
 _lock = threading.Lock()  # OMPL's random generators are not shared safely between threads: one search at a time
 
 
@@ -61,9 +95,9 @@ def path_around(
     shortened: its configurations, or None when none was found in ``time_limit`` [s] (None:
     :data:`TIME`). A start or goal nearer than MARGIN to something lowers the margin to half
     their clearance (an arm at rest 1 mm from a box may still leave it)."""
-    world = robot.collision
-    if world is None:
+    if robot.collision is None:
         return [np.array(start, dtype=float), np.array(goal, dtype=float)]
+    world = compiled(robot.collision)
     lim = robot.limits
     n = robot.nq
     space = ob.RealVectorStateSpace(n)
@@ -91,12 +125,15 @@ def path_around(
     setup.setStartAndGoalStates(a, b)
     setup.setPlanner(og.RRTConnect(setup.getSpaceInformation()))
     with _lock:
-        status = setup.solve(TIME if time_limit is None else time_limit)
-        if status.getStatus() != ob.PlannerStatus.EXACT_SOLUTION:
-            return None
-        setup.simplifySolution(SHORTENING)
-        path = setup.getSolutionPath()
-        out = [_q(path.getState(k), n) for k in range(path.getStateCount())]
+        try:
+            status = setup.solve(TIME if time_limit is None else time_limit)
+            if status.getStatus() != ob.PlannerStatus.EXACT_SOLUTION:
+                return None
+            setup.simplifySolution(SHORTENING)
+            path = setup.getSolutionPath()
+            out = [_q(path.getState(k), n) for k in range(path.getStateCount())]
+        finally:
+            _chatter.flush()
     out[0], out[-1] = np.array(start, dtype=float), np.array(goal, dtype=float)  # (exactly: not via floats of OMPL's)
     return [q for k, q in enumerate(out) if k == 0 or not math.isclose(float(np.max(np.abs(q - out[k - 1]))), 0.0)]
 

@@ -6,6 +6,7 @@ polyline through the samples at 1 mm of travel."""
 
 from __future__ import annotations
 
+import logging
 import math
 
 import coal
@@ -300,3 +301,22 @@ def test_a_refusal_over_the_service_is_a_collision_error_naming_the_pair(client:
     with pytest.raises(CollisionError) as e:
         client.plan("insomniac", {"target": [0.3, 0.0, -0.05]})
     assert e.value.code == "collision" and tuple(e.value.pair) == ("tool", GROUND)
+
+
+def test_ompls_chatter_goes_to_the_log_never_the_terminal(
+    capfd: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """A search from a start in contact: OMPL's "Error: RRTConnect: Motion planning start tree
+    could not be initialized!" is in armd's log at debug, and nothing reaches stdout or stderr."""
+    from armd.planning import sampling
+
+    arm = robots.load("insomniac")
+    start, goal = swing(arm, 0.8)
+    tip = arm.fk(start)
+    boxed = with_box(arm, (0.06, 0.06, 0.06), (float(tip[0]), float(tip[1]), float(tip[2])))
+    with caplog.at_level(logging.DEBUG, logger="armd.planning.sampling"):
+        assert sampling.path_around(boxed, start, goal, time_limit=0.05) is None
+    out, err = capfd.readouterr()
+    assert "RRTConnect" not in out + err, out + err
+    said = [r for r in caplog.records if r.name == "armd.planning.sampling" and r.levelno == logging.DEBUG]
+    assert any("RRTConnect: Motion planning start tree could not be initialized" in r.getMessage() for r in said)
