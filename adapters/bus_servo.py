@@ -559,8 +559,12 @@ class BusServoAdapter(Adapter):
                 )
             self._set_up_again()
             settings = self._settings()
-        parts = [f"alarm: {self._alarm}"] if self._alarm is not None else []
         limp = [i for i, st in settings.items() if not st.torque]
+        if limp and self._alarm is None:
+            # (the torque went off since the last read, an alarm with it maybe: read again, so that
+            # the fault is said once with its cause, not once without and again with it)
+            self._read()
+        parts = [f"alarm: {self._alarm}"] if self._alarm is not None else []
         if limp:
             parts.append(
                 f"servo id {self._named(limp)} let go (its torque off): see to the cause, then "
