@@ -180,3 +180,36 @@ def solve_many(
             branch_out[i] = -1
             err_out[i] = np.inf
             pitch_out[i] = phi
+
+
+@entry("i8(Arm, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], i8[:])")
+def solve_pitches(
+    arm: Arm,
+    ref: FloatArray,
+    point: FloatArray,
+    pitches: FloatArray,
+    qs: FloatArray,
+    ids: IntArray,
+    errs: FloatArray,
+    counts: IntArray,
+) -> int:
+    """:func:`solve_point` at each of ``pitches`` (k,) on its own (an exact pitch, not a
+    preference among them): the branches of each, nearest the seed first, one after the other
+    into ``qs`` (4 k, n), ``ids`` and ``errs``, how many at each into ``counts`` (k,) (0: that
+    pitch does not reach ``point``, or not exactly). Returns how many in all. (When every branch
+    on a target collides, the other pitches' in one call.)"""
+    n = ref.shape[0]
+    q4, id4, err4 = np.empty((4, n)), np.empty(4, dtype=np.int64), np.empty(4)
+    work, reached, one = np.empty((4, 5)), np.empty(3), np.empty(1)
+    f, zero, offset = view(arm, ref)
+    total = 0
+    for k in range(pitches.shape[0]):
+        one[0] = pitches[k]
+        code, m, _, _ = _solve_mapped(arm, f, zero, offset, ref, point, one, q4, id4, err4, work, reached)
+        counts[k] = m if code == EXACT else 0
+        for r in range(counts[k]):
+            for j in range(n):
+                qs[total, j] = q4[r, j]
+            ids[total], errs[total] = id4[r], err4[r]
+            total += 1
+    return total

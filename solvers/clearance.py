@@ -34,15 +34,19 @@ BISECTIONS = 12  # halvings of the segment from a clear configuration toward a c
 FREE_STARTS = 8  # clear atlas configurations tried for an unreachable target's answer
 PITCH_STEPS = 24  # with a free pitch: the pitches tried, every 2 pi / PITCH_STEPS
 
-_masks: weakref.WeakKeyDictionary[World, np.ndarray] = weakref.WeakKeyDictionary()
+_masks: weakref.WeakKeyDictionary[World, tuple[np.ndarray, FloatArray, object]] = weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
-def clear(arm: ArmState, world: World, result: IKResult, alternatives: Callable[[], Iterable[Branch]]) -> IKResult:
+Stage = list[Branch]  # configurations on a target, preferred first: checked in one call
+
+
+def clear(arm: ArmState, world: World, result: IKResult, alternatives: Callable[[], Iterable[Stage]]) -> IKResult:
     """``result`` made collision-free in ``world`` (the module's doc; the robot's own, which
     is not always ``arm.robot``'s: a copy of a robot shares its solver state). ``alternatives()``:
-    other configurations on the target, preferred first (the closed form's at other pitches,
-    the numerical IK's from clear starts), tried in turn when every branch of ``result`` collides."""
+    other configurations on the target in stages, preferred first (the closed form's at other
+    pitches, with the wrist rolled, the numerical IK's from clear starts), each stage checked in
+    one call (:meth:`World.colliding`) when every branch of ``result`` collides."""
     if world.ground is not None and float(result.target[2]) < world.ground:
         depth = world.ground - float(result.target[2])
         return result._replace(
@@ -55,21 +59,30 @@ def clear(arm: ArmState, world: World, result: IKResult, alternatives: Callable[
     if hit is None:
         if not result.branches:
             return result
-        others = tuple(b for b in result.branches if world.first_contact(b.q) is None)
+        others = tuple(_clear_of(world, list(result.branches)))
         return result if len(others) == len(result.branches) else result._replace(branches=others)
     if result.status == UNREACHABLE:
         return _unreachable(arm, world, result, hit)
-    free = [b for b in result.branches if world.first_contact(b.q) is None]
+    free = _clear_of(world, list(result.branches))
     if free:
         return _chosen(arm, result, free[0], free[1:])
-    for b in alternatives():
-        if world.first_contact(b.q) is None:
-            return _chosen(arm, result, b, [])
+    for stage in alternatives():
+        free = _clear_of(world, stage)
+        if free:
+            return _chosen(arm, result, free[0], [])
     return result._replace(
         status=COLLISION,
         contact=(hit.first, hit.second),
         reason=f"every configuration found on the target collides: at the nearest ({result.branch}), {hit}",
     )
+
+
+def _clear_of(world: World, branches: list[Branch]) -> list[Branch]:
+    """The branches clear in ``world``, in order (one call for all)."""
+    if not branches:
+        return []
+    hit = world.colliding(np.array([b.q for b in branches]))
+    return [b for b, h in zip(branches, hit.tolist(), strict=True) if not h]
 
 
 def pitches(chosen: float) -> list[float]:
@@ -102,23 +115,27 @@ def _touch(arm: ArmState, world: World, q: FloatArray) -> Contact | None:
     return hit
 
 
-def _clear_atlas(arm: ArmState, world: World) -> np.ndarray:
-    """Which of the arm's atlas configurations are clear in ``world`` (made once per world)."""
+def _clear_atlas(arm: ArmState, world: World) -> tuple[np.ndarray, FloatArray]:
+    """The rows of the arm's atlas clear in ``world`` and their tool points (made once per
+    world)."""
     with _lock:
-        mask = _masks.get(world)
-    if mask is None or len(mask) != len(arm.atlas.q):
+        held = _masks.get(world)
+    if held is None or held[2] is not arm.atlas:
         mask = ~world.colliding(arm.atlas.q)  # (the tool point under the ground too, as _touch)
         if world.ground is not None:
             mask &= arm.atlas.p[:, 2] >= world.ground
+        rows = np.flatnonzero(mask)
+        held = (rows, np.ascontiguousarray(arm.atlas.p[rows]), arm.atlas)
         with _lock:
-            _masks[world] = mask
-    return mask
+            _masks[world] = held
+    return held[0], held[1]
 
 
 def clear_starts(arm: ArmState, world: World, point: FloatArray, count: int) -> list[FloatArray]:
     """The ``count`` clear atlas configurations whose tool points are nearest ``point``."""
-    rows = np.flatnonzero(_clear_atlas(arm, world))
-    d = np.einsum("ij,ij->i", arm.atlas.p[rows] - point, arm.atlas.p[rows] - point)
+    rows, p = _clear_atlas(arm, world)
+    away = p - point
+    d = np.einsum("ij,ij->i", away, away)
     if len(d) > count:  # the nearest ``count``, in order (a partition first: the atlas is large)
         near = np.argpartition(d, count)[:count]
         rows, d = rows[near], d[near]

@@ -38,7 +38,7 @@ from armd.robots import Robot
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
-from .analytic import EXACT, NONE, solve_point
+from .analytic import EXACT, NONE, solve_pitches, solve_point
 from .arm import ArmState, arm_state
 from .clearance import clear, clear_starts, pitches
 from .closest import closest_family
@@ -415,22 +415,24 @@ def _closest_result(
 
 def _alternatives(
     arm: ArmState, world: World, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
-) -> Iterator[Branch]:
-    """Configurations on ``point`` other than the first answer's branches, preferred first, for
-    when they all collide (:func:`solvers.clearance.clear`): with a free pitch, the closed form's
-    branches at the other pitches, nearest the preferred one first; then the numerical IK from
-    the clear atlas configurations nearest the target (other wrist rolls; an arm outside the
-    family)."""
+) -> Iterator[list[Branch]]:
+    """Configurations on ``point`` other than the first answer's branches, in stages preferred
+    first, for when they all collide (:func:`solvers.clearance.clear`, a stage checked in one
+    call): with a free pitch, the closed form's branches at the other pitches, nearest the
+    preferred one first; the branches with the wrist rolled; then the numerical IK from the clear
+    atlas configurations nearest the target (other wrist rolls; an arm outside the family)."""
+    at: dict[float, list[Branch]] = {}  # each pitch's branches (the rolled stage tries some again)
     if arm.arrays is not None and pitch is None and arm.robot.chooses_pitch:
-        for p in pitches(float(FREE_PITCHES[0])):
-            yield from _branches_at(arm, point, p, ref, tolerance)
-    yield from _rolled(arm, point, pitch, ref, tolerance)
+        yield _at_pitches(arm, point, pitches(float(FREE_PITCHES[0])), ref, tolerance, at)
+    yield _rolled(arm, point, pitch, ref, tolerance, at)
     w2 = 0.0 if pitch is None else _PITCH_WEIGHT**2
+    found = []
     for start in clear_starts(arm, world, point, _NUMERICAL_STARTS):
         q = np.empty(arm.robot.nq)
         err, perr, _, _ = _chain_solve(arm, point, 0.0 if pitch is None else pitch, w2, start, start, 0, tolerance, q)
         if err <= tolerance and (pitch is None or perr <= PITCH_TOLERANCE):
-            yield Branch("numerical", q, err)
+            found.append(Branch("numerical", q, err))
+    yield found
 
 
 ROLL_STEP = math.pi / 12  # [rad] the other wrist rolls tried when every branch collides
@@ -438,14 +440,19 @@ ROLLED_PITCHES = 8  # ... at the preferred pitch and this many nearest it (a fre
 
 
 def _rolled(
-    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float
-) -> Iterator[Branch]:
+    arm: ArmState,
+    point: FloatArray,
+    pitch: float | None,
+    ref: FloatArray,
+    tolerance: float,
+    at: dict[float, list[Branch]],
+) -> list[Branch]:
     """For an arm whose wrist roll turns the tool about its own axis without moving the tool
     point: the closed form's branches with the roll turned (every ROLL_STEP within its limits,
     nearest the seed's first): the gripper turned may clear what it hit."""
     rj = arm.robot.roll_joint
     if arm.arrays is None or rj is None or arm.rolls_tool:
-        return
+        return []
     i = rj.index
     lo, hi = float(arm.robot.limits.lower[i]), float(arm.robot.limits.upper[i])
     r0 = float(ref[i])
@@ -457,17 +464,53 @@ def _rolled(
         tried = [float(FREE_PITCHES[0]), *pitches(float(FREE_PITCHES[0]))[:ROLLED_PITCHES]]
     else:
         tried = [float(FREE_PITCHES[0])]
-    found = [branch for p in tried for branch in _branches_at(arm, point, p, ref, tolerance)]
-    for roll in rolls:
-        for branch in found:
-            turned = branch.q.copy()
-            turned[i] = roll
-            yield Branch(branch.name, turned, branch.position_error)
+    found = _at_pitches(arm, point, tried, ref, tolerance, at)
+    if not found:
+        return []
+    Q = np.tile(np.array([b.q for b in found]), (len(rolls), 1))  # (each roll, each branch)
+    Q[:, i] = np.repeat(rolls, len(found))
+    return [Branch(b.name, q, b.position_error) for q, b in zip(Q, found * len(rolls), strict=True)]
 
 
-def _branches_at(arm: ArmState, point: FloatArray, p: float, ref: FloatArray, tolerance: float) -> list[Branch]:
+def _at_pitches(
+    arm: ArmState, point: FloatArray, ps: list[float], ref: FloatArray, tolerance: float, at: dict[float, list[Branch]]
+) -> list[Branch]:
+    """The closed form's branches on ``point`` at each tool pitch of ``ps`` in turn (those not in
+    ``at`` yet: for an exact arm in one compiled call, :func:`solvers.analytic.solve_pitches`)."""
+    assert arm.arrays is not None
+    new = [p for p in dict.fromkeys(ps) if p not in at]
+    if arm.exact and new:
+        k, n = len(new), arm.robot.nq
+        qs, ids, errs, counts = (
+            np.empty((4 * k, n)),
+            np.empty(4 * k, dtype=np.int64),
+            np.empty(4 * k),
+            np.empty(k, dtype=np.int64),
+        )
+        solve_pitches(arm.arrays, ref, point, np.array(new), qs, ids, errs, counts)
+        row = 0
+        for p, m in zip(new, counts.tolist(), strict=True):
+            at[p] = [
+                Branch(BRANCH_NAMES[int(ids[r])], qs[r].copy(), float(errs[r]))
+                for r in range(row, row + m)
+                if errs[r] <= tolerance
+            ]
+            row += m
+    return [b for p in ps for b in _branches_at(arm, point, p, ref, tolerance, at)]
+
+
+def _branches_at(
+    arm: ArmState, point: FloatArray, p: float, ref: FloatArray, tolerance: float, at: dict[float, list[Branch]]
+) -> list[Branch]:
     """The closed form's branches on ``point`` at tool pitch ``p`` (refined by the QP for an arm
-    outside the exact family); none where the pitch does not reach it."""
+    outside the exact family); none where the pitch does not reach it. Kept in ``at``."""
+    if p in at:
+        return at[p]
+    at[p] = found = _solved_at(arm, point, p, ref, tolerance)
+    return found
+
+
+def _solved_at(arm: ArmState, point: FloatArray, p: float, ref: FloatArray, tolerance: float) -> list[Branch]:
     assert arm.arrays is not None
     b = arm.buffers
     code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
