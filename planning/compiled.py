@@ -305,3 +305,49 @@ def inside(tables: FloatArray, lower: FloatArray, upper: FloatArray, tol: float)
         if not (lo[d] >= lower[d] - tol and hi[d] <= upper[d] + tol):
             return False
     return True
+
+
+@entry("b1(f8[:], f8[:, :], i8, f8[:, :])")
+def fit_motion(x: FloatArray, Q: FloatArray, degree: int, out: FloatArray) -> bool:
+    """The least-squares polynomial of ``degree`` (1 or 2) through the points (``x[i]``,
+    ``Q[i]``) (each column on its own), by its normal equations: its value, first and second
+    derivative at x = 0 into ``out`` (3, columns) (a line's second: 0). A tracking stream's goal
+    motion from its latest goals (:mod:`service.tracking`). False if the equations are singular
+    (fewer distinct x than coefficients)."""
+    k = degree + 1
+    A = np.zeros((3, 3))
+    B = np.zeros((3, Q.shape[1]))
+    for i in range(x.shape[0]):
+        powers = (1.0, x[i], x[i] * x[i])
+        for r in range(k):
+            for c in range(k):
+                A[r, c] += powers[r] * powers[c]
+            for j in range(Q.shape[1]):
+                B[r, j] += powers[r] * Q[i, j]
+    for col in range(k):  # Gaussian elimination with partial pivoting on the k x k system
+        pivot = col
+        for r in range(col + 1, k):
+            if abs(A[r, col]) > abs(A[pivot, col]):
+                pivot = r
+        if A[pivot, col] == 0.0:
+            return False
+        if pivot != col:
+            for c in range(3):
+                A[col, c], A[pivot, c] = A[pivot, c], A[col, c]
+            for j in range(Q.shape[1]):
+                B[col, j], B[pivot, j] = B[pivot, j], B[col, j]
+        for r in range(col + 1, k):
+            f = A[r, col] / A[col, col]
+            for c in range(col, k):
+                A[r, c] -= f * A[col, c]
+            for j in range(Q.shape[1]):
+                B[r, j] -= f * B[col, j]
+    for j in range(Q.shape[1]):
+        coef = np.zeros(3)
+        for r in range(k - 1, -1, -1):
+            s = B[r, j]
+            for c in range(r + 1, k):
+                s -= A[r, c] * coef[c]
+            coef[r] = s / A[r, r]
+        out[0, j], out[1, j], out[2, j] = coef[0], coef[1], 2.0 * coef[2]
+    return True

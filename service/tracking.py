@@ -40,6 +40,7 @@ import numpy as np
 from armd import solvers
 from armd.errors import ArmdError, BadRequest
 from armd.planning import JointState, Trajectory
+from armd.planning.compiled import fit_motion
 from armd.planning.online import track_step
 from armd.robots import Robot
 from armd.robots.types import FloatArray
@@ -397,8 +398,8 @@ class Tracker:
             "path": "track",
             "track": session,
             "rate_hz": traj.rate_hz,
-            "times": traj.times.tolist(),
-            "position": traj.position.tolist(),
+            "times": traj.times,  # (arrays: orjson writes them as they are, service.protocol.encode)
+            "position": traj.position,
             "seq": put.seq if put is not None and put.mode != "none" else None,
         }
         if splice is not None:
@@ -444,12 +445,10 @@ class Tracker:
         span = float(t[-1] - t[0])
         if span <= 1e-4:
             return None, 0.0, now
-        x = t - t[-1]
-        degree = 2 if len(goals) >= 3 else 1
-        X = np.vander(x, degree + 1, increasing=True)  # (columns: 1, x, x^2)
-        fit = np.linalg.solve(X.T @ X, X.T @ q)  # (least squares by the normal equations: a 3x3, microseconds)
-        p, v = fit[0], fit[1]
-        a = 2.0 * fit[2] if degree == 2 else np.zeros_like(p)
+        fit = np.empty((3, q.shape[1]))
+        if not fit_motion(t - t[-1], q, 2 if len(goals) >= 3 else 1, fit):  # (least squares: one compiled call)
+            return None, 0.0, now
+        p, v, a = fit
         if not np.any(np.abs(v) > 1e-6):
             return None, 0.0, now
         interval = span / (len(goals) - 1)
