@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .arrays import Arm, Family, family_pitch, from_family, to_family, view
+from .collide import FIRST, Shapes, check
 from .family import configs_at, formula_errors, rank_by_distance
 from .geometric import family_fk
 from .jit import entry, jit
@@ -213,3 +214,31 @@ def solve_pitches(
             ids[total], errs[total] = id4[r], err4[r]
             total += 1
     return total
+
+
+@entry("Tuple((i8, i8, f8, f8))(Arm, Shapes, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], f8[:, :], f8[:], i8[:])")
+def solve_point_clear(
+    arm: Arm,
+    shapes: Shapes,
+    ref: FloatArray,
+    point: FloatArray,
+    prefs: FloatArray,
+    qs: FloatArray,
+    ids: IntArray,
+    errs: FloatArray,
+    work: FloatArray,
+    reached: FloatArray,
+    hits: IntArray,
+) -> tuple[int, int, float, float]:
+    """:func:`solve_point`, and each branch found checked against the arm's world ``shapes``
+    in the same call: the first pair in contact of each into ``hits`` (4,) (-1: clear). The
+    solver's common case, a clear answer on an arm whose world is all primitive shapes, in one
+    call (:mod:`armd.solvers.collide`)."""
+    f, zero, offset = view(arm, ref)
+    code, m, phi, pitch = _solve_mapped(arm, f, zero, offset, ref, point, prefs, qs, ids, errs, work, reached)
+    if m > 0 and shapes.pairs.shape[0] > 0:
+        check(shapes, qs[:m], FIRST, hits, np.empty(0))
+    else:
+        for r in range(4):
+            hits[r] = -1
+    return code, m, phi, pitch

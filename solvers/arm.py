@@ -35,6 +35,7 @@ class Buffers(threading.local):
     def __init__(self, n: int) -> None:
         self.qs = np.zeros((4, n))
         self.ids = np.zeros(4, dtype=np.int64)
+        self.hits = np.zeros(4, dtype=np.int64)  # (each branch's first pair in contact, -1: clear)
         self.errs = np.zeros(4)
         self.work = np.zeros((4, 5))
         self.reached = np.zeros(3)

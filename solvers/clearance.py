@@ -55,15 +55,14 @@ def clear(arm: ArmState, world: World, result: IKResult, alternatives: Callable[
             reason=f"the target is {depth:.4g} m below the ground (z = {world.ground:.4g} m): "
             "nothing there is reachable",
         )
-    hit = world.first_contact(result.q)
+    # the answer and its other branches in one call; the pair named only where one collides
+    hits = world.colliding(np.array([result.q, *(b.q for b in result.branches)])).tolist()
+    free = [b for b, h in zip(result.branches, hits[1:], strict=True) if not h]
+    hit = world.first_contact(result.q) if hits[0] else None
     if hit is None:
-        if not result.branches:
-            return result
-        others = tuple(_clear_of(world, list(result.branches)))
-        return result if len(others) == len(result.branches) else result._replace(branches=others)
+        return result if len(free) == len(result.branches) else result._replace(branches=tuple(free))
     if result.status == UNREACHABLE:
         return _unreachable(arm, world, result, hit)
-    free = _clear_of(world, list(result.branches))
     if free:
         return _chosen(arm, result, free[0], free[1:])
     for stage in alternatives():

@@ -38,7 +38,7 @@ from armd.robots import Robot
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
-from .analytic import EXACT, NONE, solve_pitches, solve_point
+from .analytic import EXACT, NONE, solve_pitches, solve_point, solve_point_clear
 from .arm import ArmState, arm_state
 from .clearance import clear, clear_starts, pitches
 from .closest import closest_family
@@ -46,7 +46,7 @@ from .geometric import BRANCH_NAMES
 from .lm import refine_branches, refine_chain, solve_chain
 from .result import APPROXIMATE, COLLISION, OK, UNREACHABLE, Branch, IKResult
 from .target import PARALLEL, PERPENDICULAR, approach_pitch, target_point
-from .world import World, compiled
+from .world import CompiledWorld, World, compiled
 
 DEFAULT_TOLERANCE = 1e-9  # [m]: an answer is "ok" when its tool point is this close to the target
 MAX_TOLERANCE = 0.01  # [m]: a looser "ok" would not be an answer to the question asked
@@ -113,12 +113,13 @@ def solve_ik(
         isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and 0 < tolerance <= MAX_TOLERANCE
     ):
         raise BadRequest(f"tolerance must be a number in (0, {MAX_TOLERANCE}] m, got {tolerance!r}", field="tolerance")
+    world = compiled(robot.collision) if collisions and robot.collision is not None else None
+    checked = False  # (the answer and its branches found clear in the closed form's own call)
     if arm.arrays is None:
         result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
-        result = _solve_family(arm, point, pitch, ref, tolerance, roll is None)
-    world = compiled(robot.collision) if collisions and robot.collision is not None else None
-    if world is not None:
+        result, checked = _solve_family(arm, point, pitch, ref, tolerance, roll is None, world)
+    if world is not None and not (checked and (world.ground is None or float(point[2]) >= world.ground)):
         result = clear(arm, world, result, lambda: _alternatives(arm, world, point, pitch, ref, tolerance))
     if quantise:
         result = _quantise(arm, result, tolerance)
@@ -186,20 +187,36 @@ def _refined(
 
 
 def _solve_family(
-    arm: ArmState, point: FloatArray, pitch: float | None, ref: FloatArray, tolerance: float, free_roll: bool = True
-) -> IKResult:
+    arm: ArmState,
+    point: FloatArray,
+    pitch: float | None,
+    ref: FloatArray,
+    tolerance: float,
+    free_roll: bool = True,
+    world: CompiledWorld | None = None,
+) -> tuple[IKResult, bool]:
+    """The closed form's answer, and whether it and every branch listed were found clear of
+    ``world`` in the same compiled call (a world of primitive shapes; else not checked here)."""
     assert arm.arrays is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
-    code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+    together = world is not None and not world.coal_pairs
+    if together:
+        assert world is not None
+        code, m, phi, pitch_sum = solve_point_clear(
+            arm.arrays, world.shapes, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached, b.hits
+        )
+    else:
+        code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
     if code == NONE and free_roll and arm.rolls_tool and _dist(point, _ORIGIN) <= arm.reach:
         # out of reach with the seed's roll, and the roll moves the tool point: the closed form
         # at other rolls, the least turn first
         turned = _turn_roll(arm, point, prefs, ref)
         if turned is not None:
             ref, (code, m, phi, pitch_sum) = turned
+            together = False  # (solve_point's branches: not checked)
     if code == NONE:
-        return _closest(arm, point, pitch, ref, tolerance, 0, free_roll)
+        return _closest(arm, point, pitch, ref, tolerance, 0, free_roll), False
     if code == EXACT or pitch is None:
         status, reason = OK, None
     else:
@@ -216,6 +233,7 @@ def _solve_family(
         # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage
         reached_pitch = wrap(pitch_sum)
         others = tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
+        checked = together and max(b.hits.tolist()[:m]) < 0
         return IKResult(  # (positional: the fields' order, status to reason)
             status,
             qs[0],
@@ -228,7 +246,7 @@ def _solve_family(
             others,
             0,
             None if status == OK else reason,
-        )
+        ), checked
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and iterated there where it misses, at the
     # asked pitch (a free one was only the closed form's preference: the position alone counts)
@@ -244,8 +262,8 @@ def _solve_family(
         found, more = _refined(arm, rows, point, phi, tolerance)
         iterations += more
     if not found:
-        return _closest(arm, point, pitch, ref, tolerance, iterations, free_roll)
-    return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason)
+        return _closest(arm, point, pitch, ref, tolerance, iterations, free_roll), False
+    return _result(arm, status, found[0], found[1:], point, pitch, iterations, reason), False
 
 
 def _turn_roll(
