@@ -362,11 +362,36 @@ def solve_chain(
     convergence. Into ``q_out`` and its tool point into ``reached``: (position error, pitch
     error, iterations, starts used, tool pitch [rad])."""
     n = ref.shape[0]
-    f = no_family()
-    fine = max(tol * FINE, 1e-12)  # [m] where the iteration stops, inside the tolerance
-    order = np.full(n_atlas, -1, dtype=np.int64)  # the n_atlas nearest atlas points (after the seed)
-    q = np.empty(n)
+    order = np.empty(n_atlas, dtype=np.int64)
     work = lm_work(ch, n, ch.C.shape[0])
+    return _solve_chain(
+        ch, target, pitch, w2, ref, inside, atlas, tol, pitch_tol, q_out, reached, np.empty(n), order, work
+    )
+
+
+@jit
+def _solve_chain(
+    ch: Chain,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    ref: FloatArray,
+    inside: FloatArray,
+    atlas: Atlas,
+    tol: float,
+    pitch_tol: float,
+    q_out: FloatArray,
+    reached: FloatArray,
+    q: FloatArray,
+    order: NDArray[np.int64],
+    work: tuple,
+) -> tuple[float, float, int, int, float]:
+    """:func:`solve_chain` with its scratch given (``q`` (n,), ``order`` (n_atlas,), ``work``:
+    :func:`lm_work`), so that a batch makes it once."""
+    f = no_family()
+    n_atlas = order.shape[0]
+    fine = max(tol * FINE, 1e-12)  # [m] where the iteration stops, inside the tolerance
+    order[:] = -1  # the n_atlas nearest atlas points (after the seed)
     best, best_err, best_perr = 1e300, math.inf, math.inf
     iters = 0
     used = 0
@@ -402,6 +427,53 @@ def solve_chain(
         )
         iters += it
     return best_err, best_perr, iters, used, chain_pose_with(ch, q_out, reached, work[-1])
+
+
+@entry("void(Chain, f8[:, :], f8[:], f8, f8[:, :], f8[:], Atlas, i8, f8, f8, f8[:, :], f8[:, :], f8[:], f8[:], f8[:])")
+def solve_chains(
+    ch: Chain,
+    targets: FloatArray,
+    pitches: FloatArray,
+    w2: float,
+    refs: FloatArray,
+    inside: FloatArray,
+    atlas: Atlas,
+    n_atlas: int,
+    tol: float,
+    pitch_tol: float,
+    q_out: FloatArray,
+    reached_out: FloatArray,
+    err_out: FloatArray,
+    perr_out: FloatArray,
+    pitch_out: FloatArray,
+) -> None:
+    """:func:`solve_chain` for each row of ``targets`` (m, 3) [m], at tool pitch ``pitches`` row
+    [rad] (with ``w2 > 0``) from seed ``refs`` row (m, n): the batch IK of an arm outside the
+    closed-form family. Each row's answer into ``q_out``, its tool point, position error [m],
+    pitch error [rad] and tool pitch [rad] (not wrapped) into the others; the same answers as
+    :func:`solve_chain` row by row, its scratch made once."""
+    n = refs.shape[1]
+    q = np.empty(n)
+    order = np.empty(n_atlas, dtype=np.int64)
+    work = lm_work(ch, n, ch.C.shape[0])
+    for i in range(targets.shape[0]):
+        err, perr, _, _, reached_pitch = _solve_chain(
+            ch,
+            targets[i],
+            pitches[i],
+            w2,
+            refs[i],
+            inside,
+            atlas,
+            tol,
+            pitch_tol,
+            q_out[i],
+            reached_out[i],
+            q,
+            order,
+            work,
+        )
+        err_out[i], perr_out[i], pitch_out[i] = err, perr, reached_pitch
 
 
 @entry("void(Chain, f8[:, :], i8, f8[:], f8, f8, f8, f8, f8[:], b1[:], i8[:])")

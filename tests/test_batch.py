@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from conftest import plain
 
+from armd import robots
 from armd.errors import BadRequest
-from armd.solvers import solve_ik, solve_ik_batch
+from armd.solvers import BatchIKResult, solve_ik, solve_ik_batch
 from tests.test_fk import random_in_limits
 
 
@@ -65,6 +68,87 @@ def test_batch_with_seeds() -> None:
     assert np.allclose(r.q, qs, atol=1e-9)  # each seed's own branch
     one = solve_ik_batch(arm, targets, seeds=arm.neutral)
     assert np.all(one.status == "ok")
+
+
+MYCOBOT = Path(__file__).resolve().parent.parent / "examples" / "arms" / "mycobot280"
+
+
+@pytest.fixture(scope="module")
+def mycobot() -> robots.Robot:
+    """The vendor's myCobot 280, outside the closed-form family (the numerical batch), with its
+    world: itself and its floor."""
+    arm = robots.load_folder(MYCOBOT)
+    assert arm.geometry is None and arm.collision is not None
+    return arm
+
+
+def mixed_targets(arm: robots.Robot, n: int, seed: int) -> np.ndarray:
+    """Tool points of ``n`` random configurations within limits (some colliding, some under the
+    floor), and a few out of reach."""
+    reachable = np.array([arm.fk(q) for q in random_in_limits(arm, n, seed=seed)])
+    far = np.random.default_rng(seed).normal(size=(max(n // 25, 4), 3))
+    return np.vstack([reachable, far / np.linalg.norm(far, axis=1, keepdims=True) * 0.6])
+
+
+def assert_same(arm: robots.Robot, batch: BatchIKResult, targets: np.ndarray, **kwargs: Any) -> None:
+    for i, t in enumerate(targets):
+        single = solve_ik(arm, t, **kwargs)
+        assert batch.status[i] == single.status, (i, batch.status[i], single.status)
+        assert batch.branch[i] == single.branch
+        assert np.allclose(batch.q[i], single.q, rtol=0.0, atol=1e-9), (i, batch.q[i], single.q)
+        assert math.isclose(batch.position_error[i], single.position_error, rel_tol=1e-9, abs_tol=1e-15)
+        assert np.allclose(batch.reached[i], single.reached, rtol=0.0, atol=1e-9)
+        assert abs(math.remainder(batch.pitch[i] - single.pitch, 2 * math.pi)) < 1e-9
+        assert batch.contact[i] == single.contact
+        assert arm.limits.contains(batch.q[i], tol=0.0)
+
+
+@pytest.mark.parametrize("collisions", [False, True])
+@pytest.mark.parametrize("approach", [None, "parallel"])
+def test_numerical_batch_equals_single(mycobot: robots.Robot, collisions: bool, approach: str | None) -> None:
+    """The numerical batch (compiled over the rows, the rest through solve_ik) answers row by row
+    as solve_ik does, with the world and without it (``collisions=False`` was once ignored:
+    targets under the floor answered ``collision``)."""
+    targets = mixed_targets(mycobot, 300, seed=35)
+    batch = solve_ik_batch(mycobot, targets, approach=approach, collisions=collisions)
+    assert_same(mycobot, batch, targets, approach=approach, collisions=collisions)
+    seen = set(batch.status.tolist())
+    assert {"ok", "unreachable"} <= seen
+    assert ("collision" in seen) == collisions
+
+
+def test_numerical_batch_with_seeds_and_pitches(mycobot: robots.Robot) -> None:
+    qs = random_in_limits(mycobot, 200, seed=36)
+    targets = np.array([mycobot.fk(q) for q in qs])
+    pitches = np.random.default_rng(37).uniform(-math.pi, math.pi, size=len(qs))
+    seeds = np.clip(
+        qs + np.random.default_rng(38).normal(scale=0.05, size=qs.shape), mycobot.limits.lower, mycobot.limits.upper
+    )
+    batch = solve_ik_batch(mycobot, targets, approach=pitches, seeds=seeds)
+    for i in range(len(qs)):
+        single = solve_ik(mycobot, targets[i], approach=float(pitches[i]), seed=seeds[i])
+        assert batch.status[i] == single.status
+        assert np.allclose(batch.q[i], single.q, rtol=0.0, atol=1e-9)
+
+
+def test_numerical_batch_checks_its_deadline(mycobot: robots.Robot) -> None:
+    """``check`` is called as the batch goes (between its compiled calls), and what it raises
+    abandons the batch."""
+    calls = 0
+
+    class Late(Exception):
+        pass
+
+    def check() -> None:
+        nonlocal calls
+        calls += 1
+        if calls > 3:
+            raise Late
+
+    targets = mixed_targets(mycobot, 100, seed=39)
+    with pytest.raises(Late):
+        solve_ik_batch(mycobot, targets, check=check)
+    assert calls == 4
 
 
 @pytest.mark.parametrize(
