@@ -44,25 +44,52 @@ def solve_one(
 ) -> tuple[int, int, float]:
     """(code, number of branches in ``qs``/``ids``/``errs``, pitch [rad] used), all in the
     family's angles and frame."""
+    code, m, phi = ranked_branches(f, ref, x, y, z, prefs, qs, ids, work)
+    if m > 0:
+        formula_errors(f, qs, m, x, y, z, errs)
+    return code, m, phi
+
+
+@jit
+def beyond_reach(f: Family, x: float, y: float, z: float) -> bool:
+    """Whether the target is provably out of reach at any pitch (no lateral pivot offset: the
+    tool stays within reach of the pivot's circle); False where that cannot be told so cheaply."""
     P, J = f.P, f.J
-    if P[1] == 0.0:  # no lateral pivot offset: the tool stays within reach of the pivot's circle
-        reach = P[3] + P[4] + (P[5] if J[3] >= 0 else 0.0)
-        dh = math.sqrt(x * x + y * y) - abs(P[0] + P[6])
-        dz = z - (P[2] + P[7])
-        if dh * dh + dz * dz > (reach * (1.0 + 1e-9) + 1e-12) ** 2:
-            return NONE, 0, 0.0  # beyond reach: no branch at any pitch (and no pitch search)
+    if P[1] != 0.0:
+        return False
+    reach = P[3] + P[4] + (P[5] if J[3] >= 0 else 0.0)
+    dh = math.sqrt(x * x + y * y) - abs(P[0] + P[6])
+    dz = z - (P[2] + P[7])
+    return dh * dh + dz * dz > (reach * (1.0 + 1e-9) + 1e-12) ** 2
+
+
+@jit
+def ranked_branches(
+    f: Family,
+    ref: FloatArray,
+    x: float,
+    y: float,
+    z: float,
+    prefs: FloatArray,
+    qs: FloatArray,
+    ids: IntArray,
+    work: FloatArray,
+) -> tuple[int, int, float]:
+    """:func:`solve_one` without the formula's errors (a batch asks for its chosen branch's
+    only)."""
+    J = f.J
+    if beyond_reach(f, x, y, z):
+        return NONE, 0, 0.0  # no branch at any pitch (and no pitch search)
     if J[3] < 0:
         m = configs_at(f, ref, x, y, z, 0.0, 0.0, qs, ids, work)
         if m == 0:
             return NONE, 0, 0.0
         rank_by_distance(qs, ids, m, ref, f.weights)
-        formula_errors(f, qs, m, x, y, z, errs)
         return EXACT, m, 0.0
     for k in range(prefs.shape[0]):
         m = configs_at(f, ref, x, y, z, prefs[k], 0.0, qs, ids, work)
         if m > 0:
             rank_by_distance(qs, ids, m, ref, f.weights)
-            formula_errors(f, qs, m, x, y, z, errs)
             return EXACT, m, prefs[k]
     if f.exact_pitch_search:
         found, phi = boundary_pitch(f, ref, x, y, z, prefs)
@@ -74,7 +101,6 @@ def solve_one(
     if m == 0:
         return NONE, 0, 0.0
     rank_by_distance(qs, ids, m, ref, f.weights)
-    formula_errors(f, qs, m, x, y, z, errs)
     return NEAREST_PITCH, m, phi
 
 
@@ -159,28 +185,114 @@ def solve_many(
     n = refs.shape[1]
     qs = np.empty((4, n))
     ids = np.empty(4, dtype=np.int64)
-    errs = np.empty(4)
     work = np.empty((4, 5))
+    ref_f = np.empty(n)
+    prefs_f = np.empty(prefs.shape[1])
+    p = np.empty(3)
     f, zero, offset = view(arm, refs[0])
     for i in range(points.shape[0]):
         if arm.roll >= 0 and i > 0 and refs[i, arm.roll] != refs[i - 1, arm.roll]:
             f, zero, offset = view(arm, refs[i])  # (a roll that moves the tool: the view is the roll's)
-        code, m, phi, pitch = _solve_mapped(
-            arm, f, zero, offset, refs[i], points[i], prefs[i], qs, ids, errs, work, reached_out[i]
-        )
+        # (as _solve_mapped, its scratch made once and only the chosen branch's FK: its tool point
+        # and formula error, from the same numbers)
+        x, y, z = _in_family(arm, zero, offset, refs[i], points[i], prefs[i], ref_f, prefs_f)
+        code, m, phi = ranked_branches(f, ref_f, x, y, z, prefs_f, qs, ids, work)
         code_out[i] = code
         if m > 0:
-            for c in range(n):
-                q_out[i, c] = qs[0, c]
+            family_fk(f, qs[0], p)
+            err_out[i] = ((p[0] - x) ** 2 + (p[1] - y) ** 2 + (p[2] - z) ** 2) ** 0.5
+            reached_out[i, 0] = p[0] + arm.base[0]
+            reached_out[i, 1] = p[1] + arm.base[1]
+            reached_out[i, 2] = p[2]
+            pitch_out[i] = 0.0 if f.level else family_pitch(f, qs[0]) + offset
+            from_family(arm, zero, qs[0], q_out[i])
             branch_out[i] = ids[0]
-            err_out[i] = errs[0]
-            pitch_out[i] = pitch
         else:
             for c in range(n):
                 q_out[i, c] = refs[i, c]
             branch_out[i] = -1
             err_out[i] = np.inf
-            pitch_out[i] = phi
+            pitch_out[i] = phi + offset
+
+
+@jit
+def _in_family(
+    arm: Arm,
+    zero: FloatArray,
+    offset: float,
+    ref: FloatArray,
+    point: FloatArray,
+    prefs: FloatArray,
+    ref_f: FloatArray,
+    prefs_f: FloatArray,
+) -> tuple[float, float, float]:
+    """The seed and the preferred pitches in the family's angles (into ``ref_f``, ``prefs_f``),
+    and the target in its frame."""
+    to_family(arm, zero, ref, ref_f)
+    for k in range(prefs.shape[0]):
+        prefs_f[k] = prefs[k] - offset
+    return point[0] - arm.base[0], point[1] - arm.base[1], point[2]
+
+
+@entry("void(Arm, Shapes, f8[:, :], f8[:, :], f8[:, :], f8[:], f8, i8[:], f8[:, :], i8[:])")
+def clear_branches(
+    arm: Arm,
+    shapes: Shapes,
+    refs: FloatArray,
+    points: FloatArray,
+    prefs: FloatArray,
+    others: FloatArray,
+    tol: float,
+    rows: IntArray,
+    q_out: FloatArray,
+    branch_out: IntArray,
+) -> None:
+    """For each row of :func:`solve_many`'s in ``rows`` whose answer collides (in ``shapes``,
+    every pair compiled), the clear branch the single-target IK chooses
+    (:func:`solvers.clearance.clear`): the first clear one of the other branches at the same
+    pitch, nearest the seed first; else, at each pitch of ``others`` in turn (with a free
+    pitch, those :func:`solvers.ik._alternatives` tries; else none), the first clear one of the
+    branches within ``tol`` [m]. Into the row of ``q_out`` and ``branch_out`` (-1 where none
+    is: the single-target path's, with its other starts)."""
+    n = refs.shape[1]
+    qs = np.empty((4, n))
+    ids = np.empty(4, dtype=np.int64)
+    errs = np.empty(4)
+    work = np.empty((4, 5))
+    ref_f = np.empty(n)
+    prefs_f = np.empty(prefs.shape[1])
+    Q = np.empty((1, n))
+    index = np.empty(1, dtype=np.int64)
+    nothing = np.empty(0)
+    for t in range(rows.shape[0]):
+        i = rows[t]
+        branch_out[i] = -1
+        f, zero, offset = view(arm, refs[i])
+        x, y, z = _in_family(arm, zero, offset, refs[i], points[i], prefs[i], ref_f, prefs_f)
+        _, m, _ = ranked_branches(f, ref_f, x, y, z, prefs_f, qs, ids, work)
+        for r in range(1, m):
+            from_family(arm, zero, qs[r], Q[0])
+            check(shapes, Q, FIRST, index, nothing)
+            if index[0] < 0:
+                q_out[i, :] = Q[0]
+                branch_out[i] = ids[r]
+                break
+        for k in range(others.shape[0]):
+            if branch_out[i] >= 0 or beyond_reach(f, x, y, z):
+                break
+            phi = others[k] - offset if f.J[3] >= 0 else 0.0
+            m = configs_at(f, ref_f, x, y, z, phi, 0.0, qs, ids, work)
+            rank_by_distance(qs, ids, m, ref_f, f.weights)
+            formula_errors(f, qs, m, x, y, z, errs)
+            for r in range(m):
+                if errs[r] > tol:
+                    continue
+                from_family(arm, zero, qs[r], Q[0])
+                check(shapes, Q, FIRST, index, nothing)
+                if index[0] < 0:
+                    q_out[i, :] = Q[0]
+                    branch_out[i] = ids[r]
+                    break
 
 
 @entry("i8(Arm, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], i8[:])")

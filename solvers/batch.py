@@ -30,8 +30,9 @@ from armd.robots import Robot
 from armd.robots.angles import wrap_array
 from armd.robots.types import FloatArray
 
-from .analytic import EXACT, NONE, solve_many
+from .analytic import EXACT, NONE, clear_branches, solve_many
 from .arm import ArmState, arm_state
+from .clearance import pitches
 from .geometric import BRANCH_NAMES
 from .ik import (
     _NUMERICAL_STARTS,
@@ -222,11 +223,22 @@ def solve_ik_batch(
     _solve_many(arm, refs, pts, prefs, q, codes, pitch_out, ids, err, reached)
     solved = codes != NONE
     good = solved & (err <= tolerance) if arm.exact else np.zeros(m, dtype=bool)
-    if world is not None:  # a colliding answer, or a target under the floor: the single-target path
-        good[_touching(world, pts, q, good)] = False
+    moved = np.zeros(0, dtype=np.int64)
+    if world is not None:  # a target under the floor: the single-target path (it says collision)
+        good &= ~_under(world, pts)
+        hit = np.flatnonzero(good)
+        hit = hit[world.colliding(q[hit])]  # (the rows in one compiled call)
+        good[hit] = False
+        if len(hit) and not world.coal_pairs:  # a colliding answer: the branch solve_ik would choose
+            others = FREE_PITCH_GRID if pitch is None and not per_target and robot.chooses_pitch else _NO_PITCHES
+            moved = hit[_clear(arm, world, refs, pts, prefs, others, tolerance, hit, q, ids)]
+            good[moved] = True
     status[good] = np.where((codes[good] == EXACT) | (pitch is None and not per_target), OK, APPROXIMATE)
     branch[good] = np.array(BRANCH_NAMES)[ids[good]]
     pitch_out[good] = wrap_array(pitch_out[good])  # (the compiled stage's tool pitch, unwrapped)
+    for i in moved.tolist():  # (as solvers.clearance's _chosen: the pose by FK)
+        reached[i], pitch_out[i] = arm.tool_pose(q[i])
+        err[i] = math.dist(reached[i].tolist(), pts[i].tolist())
     for i in np.flatnonzero(~good):  # the slow path: the single-target pipeline (QP, closest point)
         if check is not None:
             check()
@@ -239,6 +251,35 @@ def solve_ik_batch(
         )
         _store(int(i), r, status, branch, q, err, reached, pitch_out, contact)
     return BatchIKResult(status, q, err, reached, pitch_out, branch, contact)
+
+
+CLEAR_CHUNK = 16  # colliding answers per compiled call (up to about 0.1 ms each: every branch at 24 pitches)
+FREE_PITCH_GRID = np.array(pitches(float(FREE_PITCHES[0])))  # solve_ik's other pitches where a free one's collide
+_NO_PITCHES = np.zeros(0)
+
+
+def _clear(
+    arm: ArmState,
+    world: CompiledWorld,
+    refs: FloatArray,
+    pts: FloatArray,
+    prefs: FloatArray,
+    others: FloatArray,
+    tolerance: float,
+    rows: NDArray[np.int64],
+    q: FloatArray,
+    ids: NDArray[np.int64],
+) -> NDArray[np.bool_]:
+    """For the ``rows`` whose closed-form answer collides, the clear branch :func:`solve_ik`
+    chooses (:func:`solvers.analytic.clear_branches`: the other branches, then those at the
+    pitches ``others``) into ``q`` and ``ids``, :data:`CLEAR_CHUNK` rows a compiled call; which
+    of ``rows`` found one (the others take the single-target path: its wrist rolls and
+    numerical starts)."""
+    assert arm.arrays is not None
+    for a in range(0, len(rows), CLEAR_CHUNK):
+        clear_branches(arm.arrays, world.shapes, refs, pts, prefs, others, tolerance, rows[a : a + CLEAR_CHUNK], q, ids)
+    found: NDArray[np.bool_] = ids[rows] >= 0
+    return found
 
 
 NUMERICAL_CHUNK = 8  # targets per compiled call of the numerical batch (about 0.3 ms; an unreachable one, 2 ms)

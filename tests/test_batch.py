@@ -41,6 +41,25 @@ def test_batch_equals_single(name: str, approach: str | None) -> None:
     assert np.all(batch.status[-20:] == "unreachable")
 
 
+@pytest.mark.parametrize("name", robots.names())
+@pytest.mark.parametrize("approach", [None, "parallel"])
+def test_batch_with_the_world_equals_single(name: str, approach: str | None) -> None:
+    """With the arm's world (itself, its floor) the batch still answers as solve_ik does, row by
+    row: an answer that collides moved to the clear branch solve_ik chooses (in compiled code),
+    a target under the floor ``collision``."""
+    arm = robots.load(name)
+    if approach and not (arm.geometry and (arm.geometry.has_wrist or arm.geometry.level)):
+        pytest.skip("no approach on an arm without a wrist")
+    targets = mixed_targets(arm, 400, seed=40)
+    batch = solve_ik_batch(arm, targets, approach=approach)
+    assert_same(arm, batch, targets, approach=approach)
+    bare = solve_ik_batch(arm, targets, approach=approach, collisions=False)
+    assert "collision" in batch.status.tolist() and "collision" not in bare.status.tolist()
+    if name in ("insomniac", "so101") and approach is None:  # (where these targets show it)
+        moved = (batch.status == "ok") & (bare.status == "ok") & np.any(batch.q != bare.q, axis=1)
+        assert moved.any()  # the world chose another branch for some, as solve_ik does
+
+
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut"])
 def test_batch_with_a_pitch_per_target(name: str) -> None:
     arm = plain(name)
