@@ -52,6 +52,7 @@ from .protocol import (
     WORLD,
     Limits,
     check,
+    plain_point,
 )
 from .sensor_book import DISPUTE_HOLD, SensorBook
 from .sequence import ABOVE, LIFT, SPEED, Sequence, check_distance, check_speed, sequence_point
@@ -132,6 +133,9 @@ class Handlers:
         }
 
     def ik(self, arm: Robot, req: Mapping[str, Any], deadline: Deadline) -> dict[str, Any]:
+        point = plain_point(req)
+        if point is not None:  # (the commonest request, checked in one pass: every option at its default)
+            return solvers.solve_ik(arm, point).to_dict()
         if req.get("targets") is not None:
             if req.get("target") is not None:
                 raise BadRequest("target and targets exclude each other: one target, or a batch", field="target")

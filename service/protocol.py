@@ -435,6 +435,24 @@ class Obj(Shape):
         return obj if out is None else out
 
 
+PLAIN_POINT = frozenset(("target", *ENVELOPE))
+
+
+def plain_point(req: Mapping[str, Any]) -> list[float] | None:
+    """The target of the commonest request, an IK of one point and nothing else
+    (``{"target": [x, y, z]}``, the envelope aside), when its three coordinates are floats
+    within ``MAX_METRES``: what ``check(IK_ONE, req)`` passes unchanged, seen in one pass
+    instead of the shapes' walk (a third of the service's own time per request). None for
+    anything else, which takes the full check."""
+    t = req.get("target")
+    if type(t) is not list or len(t) != 3 or not PLAIN_POINT.issuperset(req):
+        return None
+    for x in t:
+        if type(x) is not float or not -MAX_METRES <= x <= MAX_METRES:
+            return None
+    return t
+
+
 def check(shape: Obj, req: Mapping[str, Any], joints: Joints = ()) -> dict[str, Any]:
     """The request checked whole against its verb's ``shape`` (null members dropped), or
     :class:`BadRequest` naming the first field that is wrong by its path."""

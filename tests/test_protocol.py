@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from armd.errors import BadRequest
-from armd.service.protocol import Limits, allowed, decode
+from armd.service.protocol import IK_ONE, MAX_METRES, Limits, allowed, check, decode, plain_point
 
 scalars = (
     st.none()
@@ -106,3 +106,37 @@ def test_allowed_names_the_first_unknown_field() -> None:
     assert e.value.fields["field"] == "aproach" and "this verb takes: target, approach" in str(e.value)
     with pytest.raises(BadRequest):  # a verb that takes nothing
         allowed({"q": 1})
+
+
+coordinates = (
+    st.floats(-MAX_METRES, MAX_METRES)
+    | st.floats(allow_nan=False)
+    | st.integers(-2, 2)
+    | st.booleans()
+    | st.none()
+    | st.just(MAX_METRES)
+    | st.just(-MAX_METRES)
+)
+ik_requests = st.dictionaries(
+    st.sampled_from(["target", "deadline", "protocol", "approach", "seed", "targets", "x"]),
+    st.lists(coordinates, min_size=2, max_size=4) | coordinates | st.just({"sensor": "et_left", "range": 0.2}),
+    max_size=3,
+)
+
+
+@settings(max_examples=600, deadline=None)
+@given(req=ik_requests | st.builds(lambda t: {"target": t}, st.lists(coordinates, min_size=3, max_size=3)))
+def test_plain_point_is_what_the_full_check_passes_unchanged(req: dict[str, Any]) -> None:
+    """Whatever the one-pass check takes, the full check of IK_ONE takes too, and leaves as it
+    is; and it takes every plain point within bounds (else the fast path would be dead)."""
+    point = plain_point(req)
+    t = req.get("target")
+    plain = (
+        set(req) <= {"target", "deadline", "protocol"}
+        and isinstance(t, list)
+        and len(t) == 3
+        and all(type(x) is float and abs(x) <= MAX_METRES for x in t)
+    )
+    assert (point is not None) == plain
+    if point is not None:
+        assert check(IK_ONE, req, ("a", "b", "c", "d", "e"))["target"] is point

@@ -77,6 +77,20 @@ def test_ik_matches_in_process(client: ArmClient, name: str) -> None:
         assert np.linalg.norm(arm.fk(r.q) - target) < 1e-9
 
 
+def test_one_point_answers_alike_by_either_check(client: ArmClient) -> None:
+    """A plain ``{"target": [x, y, z]}`` is checked in one pass (protocol.plain_point); the
+    same request with an option at its default takes the full check: the answers agree, for
+    targets reached, out of reach and under the floor, and out of bounds is refused alike."""
+    arm = robots.load("insomniac")
+    points = [arm.fk(q).tolist() for q in clear_configs(arm, np.random.default_rng(52), 5)]
+    for t in [*points, [2.0, 0.0, 0.0], [0.3, 0.0, -0.05], [11.0, 0.0, 0.0]]:
+        plain = raw(client, "insomniac/ik", json.dumps({"target": t}).encode())
+        full = raw(client, "insomniac/ik", json.dumps({"target": t, "quantise": False}).encode())
+        for _, reply in (plain, full):
+            reply.pop("service")
+        assert plain == full, t
+
+
 def test_ik_batch_and_sensor_target(client: ArmClient) -> None:
     arm = robots.load("insomniac")
     pts = [arm.fk(q).tolist() for q in clear_configs(arm, np.random.default_rng(51), 50)] + [[2.0, 0.0, 0.0]]
