@@ -18,8 +18,9 @@ Quick requests (``fk``, ``info``, ``robots``, IK of one target: microseconds to 
 milliseconds) are answered on the thread Zenoh hands them to (zenoh-python's callback thread
 for the queryable), where a hand-over to a worker would cost more than the work
 (bench/service.py); their path is kept short, as it runs once per request on a CPU that the
-router and the clients share: keys are routed with one look-up, counters take one lock, and
-the debug line is formatted only when debug is on. The rest are served on a thread
+router and the clients share: keys are routed with one look-up, an IK of one plain point is
+checked in one pass (:func:`.protocol.plain_point`), counters take one lock, and the debug
+line is formatted only when debug is on. The rest are served on a thread
 pool, ``stop`` on a pool of its own and ``move`` and ``gripper`` on another, so that a queue of
 IK batches and plans cannot delay them (measured by bench/load.py and bench/flood.py); every
 request gets exactly one reply, an error reply for anything that goes wrong, and an
