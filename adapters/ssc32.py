@@ -84,6 +84,7 @@ import math
 import re
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import serial
@@ -105,7 +106,7 @@ QUIET = 0.1  # [s] the link from the board quiet this long after an overdue answ
 SENSOR_SHARE = 0.2  # of the link's bytes per second the wired sensors' reads and steps may use (QP: the rest)
 MAX_PERIOD = 0.25  # [s] the longest step between streamed samples (farther: refused, the link is too slow)
 LEAD = 0.05  # [s] at least this long before the board reaches a move, the next one is sent
-MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine
+MAX_LEAD = 0.25  # [s] the most the lead grows to on a busy machine; a tracking stream's, always
 LATENESS_DECAY = 0.5  # per second: how fast the lead forgets a late pass of the control loop
 QP_RESOLUTION = 10.0  # [us] QP answers a pulse / 10 (the SSC-32U guide: "a resolution of 10uS")
 FRAME = 0.02  # [s] the board outputs a servo's pulse every 20 ms (the guide); QP answers the frame in progress
@@ -117,12 +118,26 @@ CHORD_MIN = 1e-3  # [s] a timed group's speed on a piece just begun: its chord o
 ARRIVAL_TOL = 2e-4  # [s] how far from when a move is aimed for the board may have it (else it is aimed again)
 MAX_SLIP = 1.5  # periods: the most the plan's clock advances between two moves (later: the plan waits)
 RUN_TICK = 0.001  # [s] the control loop's period while streaming (sends on time: regular changes of speed)
+MAX_ASKED = 32  # questions awaiting their answers at most (a Q after each line: the board answers in order)
+LATENCY_WINDOW = 10.0  # [s] the board's latency in answering: the least over this long
+ANSWER_TOL = 0.003  # [s] an answer later than the board's latency and the link by more: the host held the bytes
 
 
 SPEED_MAX = 65535  # [us/s] the largest S the adapter writes (the board's default speed: no limit)
 # What VER answers on an SSC-32 (firmware-dependent: SSC32-V2.50USB, SSC32-1.06XE, SSC32-2.01GP):
 # anything else on the port is not one, and nothing is sent to it
 VERSION = re.compile(r"SSC-?32[-\w. ]{0,32}")
+
+
+class _Query(NamedTuple):
+    """A question written to the board whose answer is not read yet."""
+
+    asked: float  # [s] when it was written (taken before the write)
+    request: int  # [bytes] written
+    size: int  # [bytes] of its answer
+    sense: bool  # with the sensors' request after the QP
+    lines: int  # the lines written before it: its answer says they all reached the board
+    pulses: bool  # a QP of every channel (else a Q: asked only for that)
 
 
 def _on_piece(
@@ -151,11 +166,7 @@ def _groups(M: FloatArray) -> list[list[int]]:
 
 class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
-    # Not yet: a tracking stream. Idle, the board kept every limit through one (1.0x measured); beside
-    # two busy processes, the lines of a stream's splices came late more often than a move's, the
-    # board ran on to its targets and stopped dead at speed there (4x an acceleration limit,
-    # measured at the emulated board): a stream waits until the adapter keeps its lines on time.
-    splices = False
+    splices = True
     run_tick = RUN_TICK
 
     def __init__(
@@ -238,10 +249,21 @@ class SSC32Adapter(SerialAdapter):
         self._rhythm = now  # [s] the earliest the next move of a trajectory should reach the board
         self._line_gap = 0.0  # [s] how far apart the lines of a trajectory have reached the board lately
         self._settled = True  # the board heads for the trajectory's end slowly enough to stop there
+        self._tracking = False  # the lines are a tracking stream's (or its stop's)
         self._lateness = 0.0  # [s] how late the control loop has written moves lately (decaying)
         self._seen_at = now
         self._stride = 1
-        self._query: tuple[float, int, bool] | None = None  # (when a QP was written, reply bytes, with the sensors')
+        self._queries: collections.deque[_Query] = collections.deque()  # written, their answers awaited in order
+        self._polled = now  # [s] when the board's answers were last looked for
+        self._lines = 0  # lines of the stream written so far
+        # (lines, by when [s] at the latest, whether later than the link and the board's latency account for)
+        self._delivered = (0, now, False)  # the lines the board's answers say have reached it
+        self._latencies: collections.deque[tuple[float, float]] = collections.deque()  # [s] (answered, latency)
+        # the latest lines: when each was aimed to reach the board [s], and the speeds before and after [rad/s]
+        self._sent_lines: collections.OrderedDict[int, tuple[float, FloatArray, FloatArray, FloatArray]] = (
+            collections.OrderedDict()
+        )  # (and each line's piece's start [s], per joint: the piece it is in the model)
+        self._held_lines: collections.deque[tuple[float, float]] = collections.deque()  # [s] (arrived, how late)
         self._quiet_since: float | None = None  # [s] an answer was overdue: the last byte that came late since
         self._fault_noted = False
         self._reply = b""
@@ -424,10 +446,12 @@ class SSC32Adapter(SerialAdapter):
         try:
             with self._io:
                 self.serial.reset_input_buffer()
+                asked = time.monotonic()
                 self.serial.write(request)
-                if until is not None:
-                    return bytes(self.serial.read_until(until, size))
-                return bytes(self.serial.read(size))
+                got = bytes(self.serial.read_until(until, size) if until is not None else self.serial.read(size))
+            if len(got) == size or (until is not None and got.endswith(until)):  # (the board's latency, measured)
+                self._latency(time.monotonic(), asked, len(request), len(got))
+            return got
         except serial.SerialTimeoutException as e:
             raise ControllerFault(f"SSC-32 on {self.port}: {e}") from None
         except PORT_ERRORS as e:
@@ -579,6 +603,7 @@ class SSC32Adapter(SerialAdapter):
                 break
             start = actual + ARRIVAL_TOL  # (the time to aim again)
         self._write(line)
+        self._lines += 1
         # held up between the check and the write (preempted, stopped): the board has the line
         # later, no sooner than the write returned (as _write counts it); the model says so, and
         # the next line keeps a period from then
@@ -598,8 +623,12 @@ class SSC32Adapter(SerialAdapter):
             ]
         )
         target = amap.joints_from_commands(pulses, tol=np.inf)
+        before = self._at(t0)[1]  # [rad/s] the speed this line changes
         self._p0, self._since, self._p1, self._until = p0, t0, target, t0 + lasts[self._joint_group]
         self._pieces.append((self._p0, self._since, self._p1, self._until))
+        self._sent_lines[self._lines] = (float(arrivals[-1]), before, self._at(t0)[1], t0)
+        while len(self._sent_lines) > MAX_ASKED:
+            self._sent_lines.popitem(last=False)
         self._tau = tau
         if not first and float(arrivals[-1]) - self._t_line < 4 * period:  # (a trajectory's lines, not a pause)
             gap = float(arrivals[-1]) - self._t_line
@@ -637,6 +666,14 @@ class SSC32Adapter(SerialAdapter):
         # once 1.0014x the limit by the adapter's own model, in a busy CI run)
         changed = np.where(self._until <= arrival, self._until, self._since)
         since = np.maximum(arrival - changed - ARRIVAL_TOL, 1e-3)
+        # the last line held on its way (a busy host holds bytes and lets them go together): this one may
+        # follow it as soon as the link carries it, or soon after when the board has answered since
+        held = self._last_line_held(time.monotonic()) if self._tracking else False
+        if held or held is None:
+            lines, by, _ = self._delivered
+            line_time = self._line_bytes() * 10.0 / self.baud
+            gap = np.maximum(arrival - by - ARRIVAL_TOL, line_time) if lines >= self._lines else line_time
+            since = np.minimum(since, gap)
         c = np.maximum(self._amax * np.minimum(period, since) - rounding, 0.0)
         goal = self.robot.actuators.joints_from_commands(cmd.commands[-1], tol=np.inf)  # (as the board has it)
         if cmd.kind == "stop":  # a joint already past the stop's end stays where it is: a stop never reverses
@@ -659,7 +696,7 @@ class SSC32Adapter(SerialAdapter):
             v = np.where(v * v0 < 0.0, 0.0, v)
         v = np.clip(v, rounding - self._vmax, self._vmax - rounding)
         v = self._brakeable(p0, v, v0, c, period)
-        x = self._inside(p0, self._target(p0, v, span, period))
+        x = self._inside(p0, self._beyond(p0, v, v0, self._target(p0, v, span, period)))
         # a timed group's speed is its way over T; a servo with its own speed S keeps it, whatever its target
         return x, np.where(self._timed_joint, (x - p0) / span, v), tau, False
 
@@ -743,6 +780,28 @@ class SSC32Adapter(SerialAdapter):
             lo, hi = (mid, hi) if self._within(self._stop_point(x, v, period)) else (lo, mid)
         return near + lo * (full - near)
 
+    def _unsure(self, v: FloatArray, v0: FloatArray) -> FloatArray:
+        """How far [rad] the board may be from the model when a line that changes the speeds
+        from ``v0`` to ``v`` reaches it: each line on its way (no answer after it yet) may reach
+        it late, the speeds before it kept that much longer (by how long it has been on its way,
+        or as late as the latest of the last ``LATENCY_WINDOW``, the longer), and so may this one."""
+        now = time.monotonic()
+        while self._held_lines and self._held_lines[0][0] < now - LATENCY_WINDOW:
+            self._held_lines.popleft()
+        late = max((held for _, held in self._held_lines), default=0.0)  # [s] the latest line lately
+        off = np.abs(v - v0) * late
+        for aimed, before, after, _ in self._sent_lines.values():
+            off += np.abs(before - after) * max(now - aimed, late)
+        return off
+
+    def _beyond(self, p0: FloatArray, v: FloatArray, v0: FloatArray, x: FloatArray) -> FloatArray:
+        """``x``, or farther along ``v`` where the board, off the model by up to :meth:`_unsure`,
+        may be past it: a servo sent to a target behind it goes back (near a joint's turn, where
+        targets are near)."""
+        margin = 2.0 * (self._unsure(v, v0) + self._half_pulse)  # (twice: the lines on their way may be held on)
+        short = self._tracking & ~self._timed_joint & (v != 0.0) & (np.abs(x - p0) < margin)
+        return np.where(short, p0 + np.sign(v) * margin, x)
+
     def _inside(self, p0: FloatArray, x: FloatArray) -> FloatArray:
         """``x`` brought back toward ``p0``, along the way between them, as far as it must be to keep
         every position limit (the box, the coupled limits and the servos' ranges)."""
@@ -796,12 +855,17 @@ class SSC32Adapter(SerialAdapter):
         if first:
             self._stride = self.stride_for(cmd)
             self._settled = cmd.kind == "stop" and self._resting_at(cmd, now)  # (a stop at rest: nothing to send)
+            if cmd.kind != "stop":
+                self._tracking = cmd.track is not None
         period = self._stride / cmd.rate_hz
         # the lead grows with how late this loop has run lately (a busy machine), up to MAX_LEAD
         self._lateness *= LATENESS_DECAY ** max(now - self._seen_at, 0.0)
+        self._lateness = max(self._lateness, self._held_for(now))  # (the board's answers late: bytes held)
         self._seen_at = now
         lead = min(max(self.lead, period, 2.0 * self._lateness), max(MAX_LEAD, period))
-        if cmd.kind == "stop":  # a stop keeps its lead short: stalled in a stop, the board holds anyway
+        if self._tracking:  # a stream's, and a stop's of one: lines held on their way still find the board moving
+            lead = max(MAX_LEAD, period)
+        elif cmd.kind == "stop":  # a stop of a move keeps its lead short: stalled in a stop, the board holds anyway
             lead = max(self.lead, period)
         link = max(self._link_free - now, 0.0) + self._line_bytes() * 10.0 / self.baud  # until the board has it
         due = self._rhythm - link  # when the next move should be written: a period after this one
@@ -811,6 +875,7 @@ class SSC32Adapter(SerialAdapter):
                 if now + link > self._t_end:  # the board got there first, and stopped
                     self._stopped_late(cmd, now + link - self._t_end)
             self._stream(cmd, first, period, lead)
+            self._ask_delivered(time.monotonic())
         return self._settled and now >= float(np.max(self._until))
 
     def _resting_at(self, cmd: Command, now: float) -> bool:
@@ -835,6 +900,12 @@ class SSC32Adapter(SerialAdapter):
             100 * v,
         )
         self.event("late", id=cmd.id, late=late, speed_ratio=v)
+
+    def spliced(self, before: Command, cmd: Command) -> None:
+        """A stream's next trajectory takes over: the plan's clock (``_tau``, which slips with
+        the board's) goes on in its time, and lines go on (the last one may have been final)."""
+        self._tau -= cmd.at
+        self._settled = False
 
     def finished(self, cmd: Command) -> None:
         self._save_pose()
@@ -872,9 +943,10 @@ class SSC32Adapter(SerialAdapter):
             self._suspect, self._still, self._same_since = None, None, math.inf
         elif not self.fault:
             self._fault_noted = False
-        overdue = self._query is not None and now - self._query[0] > self.timeout + self._query[1] * 10.0 / self.baud
+        query = self._queries[0] if self._queries else None
+        overdue = query is not None and now - query.asked > self.timeout + query.size * 10.0 / self.baud
         if overdue:
-            self._query = None
+            self._queries.clear()
             self._reply = b""
             self._quiet_since = now
             self._suspect = None
@@ -887,12 +959,14 @@ class SSC32Adapter(SerialAdapter):
                     return
         elif overdue:
             self._faulted_at = now
-            raise ControllerFault(f"SSC-32 on {self.port} does not answer (QP got no reply in {self.timeout} s)")
-        if (self.fault or self._followed is not None) and self._query is None:  # (asked often)
+            asked = "QP" if query is not None and query.pulses else "Q"
+            raise ControllerFault(f"SSC-32 on {self.port} does not answer ({asked} got no reply in {self.timeout} s)")
+        asking = any(q.pulses for q in self._queries)  # (a QP at a time)
+        if (self.fault or self._followed is not None) and not asking:  # (asked often)
             self._next_query = min(self._next_query, self._asked + self._often())
         qp_due = now >= self._next_query
         sense_due = bool(self.sensors) and not self.fault and now >= self.sensors.ready_at
-        if self._query is None and (qp_due or sense_due) and self._quiet(now):
+        if not asking and (qp_due or sense_due) and self._quiet(now):
             self._ask_board(now, sense_due)
         if reason is not None:
             raise ControllerFault(reason)
@@ -904,7 +978,8 @@ class SSC32Adapter(SerialAdapter):
             raise ControllerFault(str(self.gone))
         now = time.monotonic()
         log.info("%s: an SSC-32 answers on %s again: asked where the board is", self.robot.name, self.port)
-        self._query, self._reply, self._quiet_since, self._suspect = None, b"", None, None
+        self._reply, self._quiet_since, self._suspect = b"", None, None
+        self._queries.clear()
         self._faulted_at = self._next_query = now  # (the recovery needs an answer asked from now)
 
     def _often(self) -> float:
@@ -918,18 +993,115 @@ class SSC32Adapter(SerialAdapter):
         """Write a ``QP`` of every channel (and, with ``sense``, the sensors' request: one write,
         the board's answers in order, docs: ssc32_sensors); its answer is read by later passes."""
         request = self._qp_request() + (self.sensors.request if sense else b"")
+        size = len(self.channels) + (self.sensors.reply_size if sense else 0)
+        self._queries.append(self._put_question(now, request, size, sense, pulses=True))
+        self._next_query = now + self.query_period
+
+    def _ask_delivered(self, now: float) -> None:
+        """Write a ``Q`` after a line (two bytes; the board answers one, ``+`` or ``.``): its
+        answer says that every line written before it has reached the board, and by when at
+        the latest (:meth:`_reached`), over which :meth:`_aim` budgets the next change of speed."""
+        if len(self._queries) >= MAX_ASKED or not self._quiet(now):
+            return
+        self._queries.append(self._put_question(now, b"Q\r", 1, False, pulses=False))
+
+    def _put_question(self, now: float, request: bytes, size: int, sense: bool, pulses: bool) -> _Query:
+        """Write ``request``, whose answer has ``size`` bytes (what came before it, if no answer
+        is awaited, is dropped first: the late bytes of an overdue one)."""
         if self.gone is not None:
             raise ControllerFault(self.gone)
-        with self._io:
-            try:
-                self.serial.reset_input_buffer()
-            except PORT_ERRORS as e:
-                raise self.port_gone(e) from None
+        if not self._queries:
+            with self._io:
+                try:
+                    self.serial.reset_input_buffer()
+                except PORT_ERRORS as e:
+                    raise self.port_gone(e) from None
         asked = max(now, self._link_free)  # (before the write: a process stopped in it asked then)
         self._write(request)
-        size = len(self.channels) + (self.sensors.reply_size if sense else 0)
-        self._query = (asked, size, sense)
-        self._next_query = now + self.query_period
+        return _Query(asked, len(request), size, sense, self._lines, pulses)
+
+    def _reached(self, query: _Query, now: float, heard: float) -> None:
+        """An answer to ``query`` came (read at ``now``): the lines written before it reached
+        the board by when it left at the latest (``now`` less its bytes' time on the link and
+        the board's latency), and were held on their way if it came ``ANSWER_TOL`` later than
+        those account for. When they reached it, for the model, is taken from when it was
+        ``heard``: ``now``, or, if this thread was held up since it last looked, then (an answer
+        that waited for this thread is no sign of a late line)."""
+        byte = 10.0 / self.baud
+        board = self._latency(now, query.asked, query.request, query.size)
+        late = self._late(query, now) > 0.0
+        self._delivered = (query.lines, now - query.size * byte - board, late)
+        sent = self._sent_lines.pop(query.lines, None)
+        for k in [k for k in self._sent_lines if k < query.lines]:  # (lines before it: on the board too)
+            del self._sent_lines[k]
+        if self._tracking and late and not query.pulses and sent is not None:  # (a Q right after it: came with it)
+            self._arrived_late(*sent, heard - (query.request + query.size) * byte - board)
+
+    def _arrived_late(
+        self, aimed: float, before: FloatArray, after: FloatArray, since: FloatArray, arrived: float
+    ) -> None:
+        """A line aimed to reach the board at ``aimed`` [s] reached it at ``arrived``, held on its
+        way (a frame or more: less leaves the board within what the QP check allows). The board
+        kept the speeds ``before`` that much longer than the model had it, and is off the model
+        by the difference from then on (each servo moves at the speed it was sent toward its
+        target, from wherever it is): that line's piece of the model (it started at ``since``)
+        starts then, where the one before had got to, and the pieces after it start off by the
+        difference. (A timed group, whose speed a late line changes, is left as it is.)"""
+        late = arrived - aimed
+        if late < FRAME:
+            return
+        self._held_lines.append((arrived, late))
+        kept = np.where(self._timed_joint, 0.0, late)  # [s] per joint
+        dq = (before - after) * kept
+
+        def moved(piece: tuple[FloatArray, FloatArray, FloatArray, FloatArray], own: bool) -> tuple[FloatArray, ...]:
+            p0, t0, p1, t1 = piece
+            speed = np.abs(p1 - p0) / np.maximum(t1 - t0, 1e-9)  # [rad/s] (0: a piece that holds)
+            q0, s0 = (p0 + before * kept, t0 + kept) if own else (p0 + dq, t0)
+            s1 = np.where(speed > 0.0, s0 + np.abs(p1 - q0) / np.where(speed > 0.0, speed, 1.0), t1 + (s0 - t0))
+            return q0, s0, p1, s1
+
+        found = False
+        for k, piece in enumerate(self._pieces):
+            own = piece[1] is since
+            found = found or own
+            if found:
+                self._pieces[k] = moved(piece, own)  # type: ignore[assignment]
+        if found:
+            self._p0, self._since, self._p1, self._until = self._pieces[-1]
+            log.debug("%s: a line reached the board %.1f ms late: the model moved %s", self.robot.name, late * 1e3, dq)
+
+    def _latency(self, now: float, asked: float, request: int, size: int) -> float:
+        """The board's latency [s]: the least, over the last ``LATENCY_WINDOW``, of how long its
+        answers took beyond their bytes' time on the link (the board's own time to answer, 50 us
+        to 5 ms by the guide, and a host that held neither way), with one more answer, asked at
+        ``asked`` (``request`` bytes) and read whole (``size``) at ``now``."""
+        self._latencies.append((now, now - asked - (request + size) * 10.0 / self.baud))
+        while self._latencies[0][0] < now - LATENCY_WINDOW:
+            self._latencies.popleft()
+        return max(min(lat for _, lat in self._latencies), 0.0)
+
+    def _late(self, query: _Query, now: float) -> float:
+        """How much later [s] than ``ANSWER_TOL`` past its time (its bytes' on the link and the
+        board's latency) ``query``'s answer is at ``now``: > 0, the host holds the bytes."""
+        board = max(min((lat for _, lat in self._latencies), default=0.0), 0.0)
+        return now - query.asked - (query.request + query.size) * 10.0 / self.baud - board - ANSWER_TOL
+
+    def _held_for(self, now: float) -> float:
+        """How long [s] the oldest answer awaited is overdue: the host holds the bytes on their
+        way (0 if it does not)."""
+        return max(self._late(self._queries[0], now), 0.0) if self._queries else 0.0
+
+    def _last_line_held(self, now: float) -> bool | None:
+        """Whether the last line written was held on its way (a busy host lets bytes go
+        together, late): True if the answer after it came late or is overdue, False if it came
+        on time or is not overdue yet (a board slow to answer, as ``QP`` may be), None if no
+        question followed it."""
+        lines, _, late = self._delivered
+        if lines >= self._lines:
+            return late
+        after = [q for q in self._queries if q.lines >= self._lines]
+        return None if not after else self._late(after[0], now) > 0.0
 
     def _quiet(self, now: float) -> bool:
         """Whether the link from the board has been quiet ``QUIET`` since an overdue answer (its
@@ -960,14 +1132,30 @@ class SSC32Adapter(SerialAdapter):
         (the stream goes on), and a second answer in a row with a servo off the same way is a
         fault. Those servos are then followed (:meth:`_follow`) by every answer while the model
         moves: the stop that brakes the arm after the fault brakes from where the board is."""
-        if self._query is None:
+        now, looked = time.monotonic(), self._polled
+        self._polled = now
+        if not self._queries:
             return
         self._reply += self._read_waiting()
-        asked, size, sensed = self._query
-        if len(self._reply) < size:
-            return
-        n = len(self.channels)
-        reply, sensors, self._reply, self._query = self._reply[:n], self._reply[n:size], b"", None
+        heard = (
+            now if now - looked <= ANSWER_TOL else looked
+        )  # [s] (this thread held up since it last looked: then, at the soonest)
+        while self._queries and len(self._reply) >= self._queries[0].size:
+            query = self._queries.popleft()
+            answer, self._reply = self._reply[: query.size], self._reply[query.size :]
+            if not query.pulses and answer not in (b"+", b"."):  # (not the board's answer to Q: out of step)
+                log.info("%s: Q got %r: the answers awaited are dropped", self.robot.name, answer)
+                self._queries.clear()
+                self._reply, self._quiet_since = b"", time.monotonic()
+                return
+            self._reached(query, time.monotonic(), heard)
+            if query.pulses:
+                self._look_at(answer, query.asked, query.sense)
+
+    def _look_at(self, answer: bytes, asked: float, sensed: bool) -> None:
+        """A ``QP`` answer (and the sensors' part after it, if ``sensed``), as :meth:`_poll_reply` says."""
+        n, size = len(self.channels), len(answer)
+        reply, sensors = answer[:n], answer[n:]
         self._answered, self._asked = time.monotonic(), asked
         self._answer = np.array([10.0 * b for b in reply])
         if self._followed is not None:  # (servos found off the model: followed while the model moves)
