@@ -57,6 +57,26 @@ linkage's servos (a group that moves more than one joint, desk4's) go in one com
   servos are limp, and the first line to a channel would jump its servo at full speed; the
   fault says to restart the adapter.
 
+- Deliveries: a ``Q`` follows every line (two bytes; the board answers ``+`` or ``.``, in
+  order with any other answer): its answer says the line has reached the board, and by when at
+  the latest (its bytes' time on the link and the board's own latency, the least of the last
+  ``LATENCY_WINDOW``, taken off). An answer later than those by ``ANSWER_TOL`` says the host
+  held the bytes on their way (a busy host's kernel thread that carries a pseudo-terminal's
+  bytes, a USB link that waits to fill its packets), and lets what it held go together: the
+  lines then reach the board as fast as the link carries them (6 ms apart at 115200 baud),
+  their changes of speed closer than they were aimed. A move's lines go on as aimed (the
+  answers only confirm them, and an answer overdue makes the lead grow). A tracking stream
+  (``splices``: its trajectories spliced one into the next, one a cycle) is followed within
+  every limit through it: its lines (and its stop's) aim ``MAX_LEAD`` ahead, so a line held on
+  its way still finds the board moving along the plan, not stopped dead at a target; a line
+  after one whose answer came late, or has not come when it was due, changes each speed by no
+  more than the acceleration limit gives the link's time of one line (the board may have both
+  back to back); a line found held moves the model (its piece starts when it came, and the
+  pieces after it are off by the speeds kept meanwhile: the board is where the model says,
+  for the aims and the checks); and each target lies beyond where the board may be, off the
+  model by the lines still on their way (near a joint's turn, where targets are near, a
+  target behind the board sends it back).
+
 Start-up: ``VER`` must answer. Then ``QP``: a board already outputting pulses on every channel
 (the adapter restarted, the board stayed powered) is adopted as it is, with no pulse change. A
 board just powered outputs none, and a hobby servo's position is unknown until its first
@@ -166,7 +186,7 @@ def _groups(M: FloatArray) -> list[list[int]]:
 
 class SSC32Adapter(SerialAdapter):
     kind = "ssc32"
-    splices = True
+    splices = True  # a stream is followed through lines held on their way to the board: see "Deliveries"
     run_tick = RUN_TICK
 
     def __init__(
