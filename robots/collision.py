@@ -122,6 +122,9 @@ class CollisionModel:
             self.pairs.append(Contact(self.links[a], self.links[b]))
         self.geometry = geom
         self._local = threading.local()
+        self.derived: dict[
+            str, object
+        ] = {}  # what other layers build from this world and keep with it (as Robot.derived)
 
     def describe(self) -> dict[str, object]:
         """A JSON-ready summary (the protocol's ``info``): the floor's height [m] (None: none),

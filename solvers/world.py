@@ -309,14 +309,15 @@ _compiling = threading.Lock()
 
 
 def compiled(world: CollisionModel) -> CompiledWorld:
-    """``world``'s :class:`CompiledWorld`, built on first use and kept with ``world`` (on it: a
-    weak map would keep it for ever, the compiled world holding its model; a world with other
-    obstacles is another collision model, compiled anew)."""
-    got: CompiledWorld | None = world.__dict__.get("_compiled_world")
+    """``world``'s :class:`CompiledWorld`, built on first use and kept in ``world.derived`` (as
+    the solver's state in ``Robot.derived``; a weak map would keep it for ever, the compiled
+    world holding its model; a world with other obstacles is another collision model, compiled
+    anew)."""
+    got = world.derived.get("compiled")
     if got is None:
         with _compiling:
-            got = world.__dict__.get("_compiled_world")
+            got = world.derived.get("compiled")
             if got is None:
-                got = CompiledWorld(world)
-                world.__dict__["_compiled_world"] = got
+                got = world.derived["compiled"] = CompiledWorld(world)
+    assert isinstance(got, CompiledWorld)
     return got
