@@ -5,7 +5,8 @@ Koch arm) on Protocol 2.0, through ROBOTIS's SDK, ``dynamixel-sdk``.
 it monitors the arm: :mod:`.bus_servo`. Each cycle is one sync write of every servo's profile
 velocity and goal position (112/4 and 116/4, one block) and one sync read of its current,
 velocity, position, voltage and temperature (126 to 146); a status whose alert bit is set is
-followed by a read of that servo's hardware error status (70), to name the alarm. As with
+followed by a read of that servo's hardware error status (70), to name the alarm (its reply
+lost: read again, so that the fault, said once, is said with its cause). As with
 Feetech's SDK, the input is reset before every exchange (the SDK's ``clearPort`` waits for the
 output), and each sync-read reply is read with its error byte (``readRx``).
 """
@@ -30,6 +31,7 @@ ACCELERATION_UNIT = 214.577 * 4096 / 3600  # [counts/s^2] of a profile accelerat
 STALL_CURRENT = 2300.0 / 2.69  # [current units] the XM430-W350's stall current (2.3 A at 12 V)
 ALARMS = {1: "input voltage", 4: "overheating", 8: "motor encoder", 16: "electrical shock", 32: "overload"}
 ALERT = 0x80
+ALARM_READS = 3  # reads of a servo's hardware error status before it is named only "hardware error"
 REBOOT_TIME = 0.5  # [s] a servo rebooted answers again after this (the e-Manual: within a few hundred ms)
 
 
@@ -62,12 +64,20 @@ class DynamixelBus(SdkBus):
                 temperature=float(data[20]),
             )
         for i in alerted:  # name the alarm: the servo's hardware error status
-            self._fresh()
-            bits, result, _ = self.packets.read1ByteTxRx(self.handler, i, HARDWARE_ERROR)
-            names = tuple(n for b, n in ALARMS.items() if bits & b) if self._ok(result) else ("hardware error",)
             r = out[i]
-            out[i] = Reading(r.position, r.speed, r.load, r.voltage, r.temperature, names or ("hardware error",))
+            out[i] = Reading(r.position, r.speed, r.load, r.voltage, r.temperature, self._alarms(i))
         return out
+
+    def _alarms(self, ident: int) -> tuple[str, ...]:
+        """The names of the servo's hardware error bits; its reply lost, asked again (up to
+        ``ALARM_READS`` times: a fault is said once, so it is said with its cause, not as a
+        "hardware error" first and again once named), else ``("hardware error",)``."""
+        for _ in range(ALARM_READS):
+            self._fresh()
+            bits, result, _ = self.packets.read1ByteTxRx(self.handler, ident, HARDWARE_ERROR)
+            if self._ok(result):
+                return tuple(n for b, n in ALARMS.items() if bits & b) or ("hardware error",)
+        return ("hardware error",)
 
     def write_goals(self, goals: dict[int, int], speeds: dict[int, int]) -> None:
         params: list[int] = []  # per servo: profile velocity 112/4, goal position 116/4

@@ -21,7 +21,7 @@ from armd.clients import ArmClient
 from armd.errors import ControllerFault
 
 pytest.importorskip("dynamixel_sdk")
-from armd.adapters.dynamixel import DynamixelAdapter
+from armd.adapters.dynamixel import DynamixelAdapter, DynamixelBus
 
 ROOT = Path(__file__).resolve().parent.parent
 ARMS = ROOT / "examples" / "arms"
@@ -96,6 +96,22 @@ def test_a_servo_that_does_not_answer_at_start_is_named(omx: robots.Robot, adapt
     with EmulatorProcess(DynamixelEmulator, ids=[11, 12, 13, 15]) as emu, pytest.raises(ControllerFault) as e:
         DynamixelAdapter(adapter_session, omx, emu.port)
     assert "servo id 14 (joint4)" in e.value.message
+
+
+def test_an_alarm_is_named_though_the_read_of_its_cause_lost_a_reply() -> None:
+    """A low supply: each servo's status says an alarm, and the adapter reads its hardware error
+    status to name it. That read's reply lost on the wire: read again, so the alarm is named
+    (the fault is said once: with its cause, not as a "hardware error" first)."""
+    with EmulatorProcess(DynamixelEmulator, ids=IDS) as emu:
+        bus = DynamixelBus(emu.port, 1_000_000)
+        try:
+            emu.set_voltage(3.0)
+            assert bus.read(IDS)[12].alarms == ("input voltage",)
+            emu.drop_replies(12, 1, 1)  # (after one: the sync read's status through, the alarm's read lost)
+            got = bus.read(IDS)
+            assert all(got[i].alarms == ("input voltage",) for i in IDS), {i: got[i].alarms for i in IDS}
+        finally:
+            bus.close()
 
 
 def test_an_alarm_is_a_fault_until_an_operator_unlocks(

@@ -119,6 +119,8 @@ def test_a_silent_servo_and_a_lost_reply(bus: tuple[DynamixelEmulator, object, o
     assert ph.ping(port, 3)[1] == sdk.COMM_SUCCESS  # type: ignore[attr-defined]
     emu.silence(3)
     assert ph.ping(port, 3)[1] == sdk.COMM_RX_TIMEOUT  # type: ignore[attr-defined]
+    emu.drop_replies(2, 1, after=1)  # (the next reply goes through, the one after is lost)
+    assert [ph.ping(port, 2)[1] for _ in range(3)] == [sdk.COMM_SUCCESS, sdk.COMM_RX_TIMEOUT, sdk.COMM_SUCCESS]  # type: ignore[attr-defined]
 
 
 def test_a_power_cycle_keeps_the_supplys_voltage_and_the_horns_place(

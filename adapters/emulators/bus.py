@@ -42,10 +42,11 @@ this is the documented behaviour of a position servo, with each vendor's numbers
 - Voltage and temperature are set by the test (:meth:`set_voltage`, :meth:`set_temperature`);
   outside the control table's limits they set the voltage or overheat bit.
 
-Faults, for tests: ``drop_replies(id, n)`` (the next ``n`` status packets of that servo are
-lost on the wire), ``silence(id)`` (it never answers again: a cable off), ``trip_overload(id)``
-(its overload protection trips, as a payload too heavy would make it), ``power_cycle()``
-(RAM registers back to their defaults: torque off; the EEPROM and the horn's position stay).
+Faults, for tests: ``drop_replies(id, n, after=0)`` (the next ``n`` status packets of that
+servo are lost on the wire, once ``after`` more have gone through), ``silence(id)`` (it never
+answers again: a cable off), ``trip_overload(id)`` (its overload protection trips, as a payload
+too heavy would make it), ``power_cycle()`` (RAM registers back to their defaults: torque off;
+the EEPROM and the horn's position stay).
 """
 
 from __future__ import annotations
@@ -94,6 +95,7 @@ class ServoState:
     blocked_at: float | None = None  # [counts] something in the way (hold())
     overloaded_for: float = 0.0  # [s] how long the load has been above the protection threshold
     drop: int = 0  # status packets still to lose
+    drop_after: int = 0  # ... once this many more have gone through
     silent: bool = False
     # (time [s], position [counts]) at every step it moved, for tests (the last ten minutes at most)
     moved: deque[tuple[float, float]] = field(default_factory=lambda: deque(maxlen=600_000))
@@ -184,10 +186,12 @@ class BusEmulator(PtyEmulator):
         with self._lock:
             self.servos[ident].temperature = float(celsius)
 
-    def drop_replies(self, ident: int, n: int) -> None:
-        """Lose the next ``n`` status packets of servo ``ident`` (noise on the wire)."""
+    def drop_replies(self, ident: int, n: int, after: int = 0) -> None:
+        """Lose the next ``n`` status packets of servo ``ident`` (noise on the wire), once
+        ``after`` more have gone through."""
         with self._lock:
             self.servos[ident].drop += int(n)
+            self.servos[ident].drop_after = int(after)
 
     def trip_overload(self, ident: int) -> None:
         """The servo's overload protection trips now (a load the motion model cannot make: a
@@ -324,7 +328,9 @@ class BusEmulator(PtyEmulator):
                 self.transactions += 1
                 for ident, reply in self._execute(packet, t):
                     s = self.servos[ident]
-                    if s.drop > 0:
+                    if s.drop > 0 and s.drop_after > 0:
+                        s.drop_after -= 1
+                    elif s.drop > 0:
                         s.drop -= 1
                         continue
                     self._transmit(reply, t + self._return_delay(ident) + PROCESSING)
