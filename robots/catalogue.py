@@ -27,6 +27,7 @@ from . import checks
 from .actuators import Actuator, ActuatorMap, BusServo, Gripper, Servo, Stepper
 from .chain import recognise, roll_joint
 from .collision import GROUND, CollisionModel, Obstacle
+from .frames import frame_id
 from .geometry import Geometry
 from .limits import CoupledLimit, JointLimits
 from .linkages import FourBar
@@ -420,7 +421,7 @@ class _Builder:
     def _rooted_at(self, model: pin.Model, base_frame: str, meta: _Table, urdf_name: str) -> pin.Model:
         """``model`` with ``base_frame`` as its world frame: targets, FK, plans and lines are in
         the base frame wherever it sits in the URDF (it must be fixed to the URDF's root)."""
-        frame = model.frames[model.getFrameId(base_frame)]
+        frame = model.frames[frame_id(model, base_frame)]
         if frame.parentJoint != 0:
             raise meta.error(
                 "base_frame",
@@ -611,7 +612,7 @@ class _Builder:
         """
         rng = np.random.default_rng(0)
         data = model.createData()
-        fid = model.getFrameId(tool_frame)
+        fid = frame_id(model, tool_frame)
         reach = geom.upper_arm + geom.forearm + geom.hand + math.hypot(*geom.tool_offset)
         worst = 0.0
         for _ in range(16):

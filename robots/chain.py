@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from .frames import frame_id
 from .geometry import Geometry, RollModel
 from .limits import JointLimits
 from .types import FloatArray
@@ -57,7 +58,7 @@ def recognise(
 ) -> Recognised:
     """The family in ``model``'s chain to ``tool_frame`` (the tool axis is ``tool_axis`` in the
     tool frame), or the reason it is not there."""
-    fid = model.getFrameId(tool_frame)
+    fid = frame_id(model, tool_frame)
     chain = []
     j = int(model.frames[fid].parentJoint)
     while j > 0:
@@ -201,7 +202,7 @@ def roll_joint(
 ) -> RollJoint | None:
     """The last joint of the chain to the tool when it is outside the family and turns about the
     tool axis (to 1e-6): the arm's wrist roll, with its sign and offset (measured at q = 0)."""
-    fid = model.getFrameId(tool_frame)
+    fid = frame_id(model, tool_frame)
     j = int(model.frames[fid].parentJoint)
     if j <= 0 or model.joints[j].shortname() not in _REVOLUTE:
         return None

@@ -22,6 +22,7 @@ from .actuators import ActuatorMap, Gripper
 from .angles import wrap
 from .chain import RollJoint
 from .collision import CollisionModel
+from .frames import frame_id
 from .geometry import Geometry
 from .limits import JointLimits
 from .sensors import RangeSensor
@@ -92,7 +93,7 @@ class Robot:
         self.model = model
         self.tool_frame = tool_frame
         self.base_frame = base_frame
-        self.tool_frame_id = model.getFrameId(tool_frame)
+        self.tool_frame_id = frame_id(model, tool_frame)
         self.joint_names = joint_names
         self.limits = limits
         self.actuators = actuators
@@ -243,7 +244,7 @@ class Robot:
 
     def frame_position(self, q: Sequence[float] | FloatArray, frame: str) -> FloatArray:
         """Origin [m] of any URDF frame, in ``base``."""
-        fid = self.model.getFrameId(frame)
+        fid = frame_id(self.model, frame)
         if fid >= self.model.nframes:
             frames = sorted({f.name for f in self.model.frames})
             raise BadRequest(f"unknown frame {frame!r}; frames: {', '.join(frames)}", field="frame")
@@ -306,7 +307,7 @@ class Robot:
             )
         qa = self.joint_vector(q)
         assert s.frame is not None
-        fid = self.model.getFrameId(s.frame)
+        fid = frame_id(self.model, s.frame)
         data = self.data()
         pin.forwardKinematics(self.model, data, qa)
         placement = pin.updateFramePlacement(self.model, data, fid)

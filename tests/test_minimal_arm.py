@@ -8,6 +8,7 @@ import logging
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 import pytest
 import zenoh
 
@@ -53,6 +54,20 @@ def test_two_lines_load_with_limits_from_the_velocity_said_once(
     said = [r.getMessage() for r in caplog.records if "no acceleration or jerk limit" in r.getMessage()]
     assert len(said) == 1 and all(j in said[0] for j in arm.joint_names), said
     assert len(arm.actuators) == 0 and arm.gripper is None
+
+
+def test_a_link_and_a_joint_of_one_name_load_and_the_link_is_meant(tmp_path: Path) -> None:
+    """A URDF that gives a link and a joint the same name (the Braccio's ``gripper_fix``), that name
+    the tool frame: the arm loads, and the tool is the link."""
+    renamed = ('<joint name="tool_joint" type="fixed">', '<joint name="tool" type="fixed">')
+    arm = robots.load_folder(_folder(tmp_path, urdf_edits=(renamed,)))
+    plain = robots.load("insomniac")
+    q = np.array([0.2, 1.2, -1.0, -0.3, 0.1])
+    assert np.allclose(arm.fk(q), plain.fk(q), atol=1e-12)
+    assert arm.model.frames[arm.tool_frame_id].type == pin.FrameType.BODY
+    assert np.allclose(arm.frame_position(q, "tool"), plain.frame_position(q, "tool"), atol=1e-12)
+    r = solvers.solve_ik(arm, plain.fk(q))
+    assert r.status == "ok"
 
 
 def test_given_limits_are_kept_and_only_the_missing_ones_defaulted(tmp_path: Path) -> None:
