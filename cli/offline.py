@@ -41,6 +41,10 @@ def cmd_catalogue(args: argparse.Namespace) -> int:
         print(f"  actuators: {acts}")
         if arm.sensors:
             print(f"  sensors: {', '.join(sorted(arm.sensors))}")
+        if arm.collision is None:
+            print(f"  collisions: not checked: {arm.collision_off}")
+        for link, what in sorted(arm.collision_links.items()):
+            print(f"  collision of {link}: {what}")
         print()
     return 0
 

@@ -34,6 +34,7 @@ from .linkages import FourBar
 from .linkages import region as linkage_region
 from .robot import Robot
 from .sensors import RangeSensor
+from .stand_ins import SHAPES, CollisionEdits, StandIn
 from .types import FloatArray
 from .units import parse_angle
 
@@ -241,7 +242,8 @@ class _Builder:
             raise meta.error("joints", "lists a joint twice")
 
         # the URDF and its meshes, checked before Pinocchio reads them (robots/checks.py)
-        self.checked = checks.urdf(self.folder, urdf_name, self.file, self._meshes_optional(top))
+        self.edits = self._collision_edits(top)
+        self.checked = checks.urdf(self.folder, urdf_name, self.file, self.edits)
         model = self._load_urdf(urdf_name, meta)
         held = self._check_joints(model, joint_names, meta, urdf_name)
         if held:
@@ -301,16 +303,42 @@ class _Builder:
             roll_joint=roll,
             collision=collision,
             collision_off=collision_off,
+            collision_links=self.checked.links,
             tracking_tolerance=tracking,
         )
 
-    def _meshes_optional(self, top: _Table) -> bool:
-        """``[collision] meshes_optional``: true serves the arm without collision checks where a
-        mesh cannot be used (default false: such a mesh refuses the arm)."""
-        optional = top.table("collision", {}).raw("meshes_optional", False)
+    def _collision_edits(self, top: _Table) -> CollisionEdits:
+        """robot.toml's ``[collision]`` keys on single links: ``skip``, ``stand_in``,
+        ``meshes_optional`` (:mod:`robots.stand_ins`); the links are checked against the URDF
+        there."""
+        col = top.table("collision", {})
+        optional = col.raw("meshes_optional", False)
         if not isinstance(optional, bool):
-            raise top.error("collision", f"meshes_optional must be true or false, got {optional!r}")
-        return optional
+            raise col.error("meshes_optional", f"must be true or false, got {optional!r}")
+        skip = col.raw("skip", [])
+        if not isinstance(skip, list) or not all(isinstance(x, str) for x in skip):
+            raise col.error("skip", f"must be a list of link names, got {skip!r}")
+        stand_in: dict[str, StandIn] = {}
+        table = col.table("stand_in", {})
+        for link in list(table.data):
+            t = table.table(link)
+            shapes = [k for k in SHAPES if t.has(k)]
+            if len(shapes) != 1:
+                raise t.error(None, f"must give one of {', '.join(SHAPES)}, got {sorted(t.data)}")
+            shape = shapes[0]
+            size: tuple[float, ...]
+            if shape == "sphere":
+                size = (t.number(shape, positive=True),)
+            else:
+                size = tuple(t.vector(shape, SHAPES[shape]))
+                if min(size) <= 0:
+                    raise t.error(shape, f"must be positive, got {list(size)}")
+            xyz = t.vector("xyz", 3, [0.0, 0.0, 0.0])
+            rpy = t.vector("rpy", 3, [0.0, 0.0, 0.0], angle=True)
+            t.finish()
+            stand_in[link] = StandIn(shape, size, (xyz[0], xyz[1], xyz[2]), (rpy[0], rpy[1], rpy[2]))
+        table.finish()
+        return CollisionEdits(self.file, tuple(skip), stand_in, optional)
 
     def _load_urdf(self, urdf_name: str, meta: _Table, held: dict[str, float] | None = None) -> pin.Model:
         urdf_path = self.folder / urdf_name
@@ -330,9 +358,11 @@ class _Builder:
     ) -> tuple[CollisionModel | None, str | None]:
         """The URDF's collision shapes, ``[world] ground`` (the floor's height [m] in the base
         frame, default 0; ``false``: none) and ``[collision] allowed`` (pairs of link names
-        never checked); a neutral pose in collision is logged. A mesh that cannot be used
-        refuses the arm, but with ``[collision] meshes_optional = true``: then no collision
-        model, and why (said once in the log, and in ``info``)."""
+        never checked); a neutral pose in collision is logged. A mesh that cannot be used was
+        left out already, or refused the arm (robots/checks.py, robots/stand_ins.py); one that
+        passed the checks and that Pinocchio or coal still cannot load refuses the arm, but with
+        ``[collision] meshes_optional = true``: then no collision model, and why (said once in
+        the log, and in ``info``)."""
         world = top.table("world", {})
         raw = world.raw("ground", 0.0)
         ground = None if raw is False else world.number("ground", 0.0)
@@ -349,37 +379,32 @@ class _Builder:
             for link in pair:
                 if link not in links and link != GROUND:
                     raise col.error("allowed", f"{urdf_name} has no link {link!r}; links: {', '.join(sorted(links))}")
-        optional = self._meshes_optional(top)
-        col.raw("meshes_optional", False)
+        for key in ("meshes_optional", "skip", "stand_in"):  # (read by _collision_edits)
+            col.raw(key, None)
         col.finish()
-        off = self.checked.collision_off
-        if self.checked.unusable:  # (only with meshes_optional: else the first refused the arm)
+        if self.checked.unusable:  # (only with meshes_optional: else they refused the arm)
             log.warning(
-                "%s: %d mesh(es) cannot be used ([collision] meshes_optional = true)%s: %s",
+                "%s: %d mesh(es) cannot be used, left out ([collision] meshes_optional = true; the arm's other "
+                "shapes, the floor and the obstacles are checked): %s",
                 self.folder.name,
                 len(self.checked.unusable),
-                ": served without collision checks" if off is not None else "",
                 "; ".join(self.checked.unusable),
             )
-        if off is None:
-            try:  # (meshes: checked inside the arm's folder, named by their paths: robots/checks.py)
-                model_ = CollisionModel(
-                    model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles, [str(self.folder)]
-                )
-            except Exception as e:  # Pinocchio's and coal's own errors (a mesh assimp cannot read, say)
-                problem = f"its collision shapes cannot be loaded: {e}"
-                if not optional:
-                    raise RobotFileError(
-                        str(self.folder / urdf_name),
-                        None,
-                        f"{problem} (to serve the arm without collision checks, set [collision] "
-                        "meshes_optional = true in robot.toml)",
-                    ) from None
-                off = f"{self.folder / urdf_name}: {problem}"
-                log.warning(
-                    "%s: served without collision checks ([collision] meshes_optional): %s", self.folder.name, off
-                )
-        if off is not None:
+        try:  # (meshes: checked inside the arm's folder, named by their paths: robots/checks.py)
+            model_ = CollisionModel(
+                model, self.urdf_text, ground, [(a, b) for a, b in allowed], obstacles, [str(self.folder)]
+            )
+        except Exception as e:  # Pinocchio's and coal's own errors (a mesh assimp cannot read, say)
+            problem = f"its collision shapes cannot be loaded: {e}"
+            if not self.edits.meshes_optional:
+                raise RobotFileError(
+                    str(self.folder / urdf_name),
+                    None,
+                    f"{problem} (stand in for the link with a primitive or skip it in robot.toml's [collision], "
+                    "or set [collision] meshes_optional = true to serve the arm without collision checks)",
+                ) from None
+            off = f"{self.folder / urdf_name}: {problem}"
+            log.warning("%s: served without collision checks ([collision] meshes_optional): %s", self.folder.name, off)
             return None, off
         hit = model_.first_contact(neutral)
         if hit is not None:  # (said, not refused: IK and plans do not check collisions yet)

@@ -16,9 +16,10 @@ naming the file, the element and what is wrong:
   Pinocchio;
 - each mesh: one of the formats below, under :data:`MAX_MESH_BYTES`, a binary STL's triangle count
   as its size says and at most :data:`MAX_TRIANGLES`. A mesh that cannot be used refuses the arm,
-  unless robot.toml's ``[collision] meshes_optional = true`` says that the arm may be served
-  without collision checks (then the reason is in ``info``). A mesh outside the folder, or not a
-  regular file, refuses the arm whatever robot.toml says: it is never opened;
+  naming every one, unless robot.toml stands in for its link or skips it, or says ``[collision]
+  meshes_optional = true`` (then that mesh is left out and said, and everything else is checked:
+  :mod:`robots.stand_ins`). A mesh outside the folder, or not a regular file, refuses the arm
+  whatever robot.toml says: it is never opened;
 - the limits, as robot.toml and the URDF give them together (:func:`check_limits`).
 
 Units: positions [rad] (or [m] for a prismatic joint), lengths [m], rates per second.
@@ -37,6 +38,7 @@ from xml.parsers import expat
 from armd.errors import FileProblem, RobotFileError
 
 from .limits import JointLimits
+from .stand_ins import CollisionEdits
 
 # What a small arm's folder holds, with room to spare; each cap is what a bigger file or number
 # would cost or break:
@@ -62,13 +64,13 @@ _STL_TRIANGLE = 50  # [bytes] a binary STL's triangle: normal, 3 vertices (float
 
 class CheckedUrdf(NamedTuple):
     """An arm's URDF, checked: ``text`` as Pinocchio is to read it (each usable mesh named by its
-    checked path inside the folder); ``unusable``: the meshes that cannot be used and why (only
-    with ``meshes_optional``, else the first refuses the arm); ``collision_off``: why collisions
-    cannot be checked (a collision mesh of ``unusable``), or None."""
+    checked path inside the folder, robot.toml's stand-ins and skips applied); ``unusable``: the
+    meshes that cannot be used and why (only with ``meshes_optional``, else they refuse the arm);
+    ``links``: what robot.toml changed of a link's collision shapes, or why they were left out."""
 
     text: str
     unusable: tuple[str, ...]
-    collision_off: str | None
+    links: dict[str, str]
 
 
 # -- files --------------------------------------------------------------------------------------
@@ -155,9 +157,10 @@ def robot_toml(folder: Path) -> bytes:
 # -- the URDF -----------------------------------------------------------------------------------
 
 
-def urdf(folder: Path, name: str, toml_file: str, meshes_optional: bool) -> CheckedUrdf:
+def urdf(folder: Path, name: str, toml_file: str, edits: CollisionEdits) -> CheckedUrdf:
     """The arm's URDF ``name`` (robot.toml's ``[robot] urdf``), checked before Pinocchio reads
-    it: its file, its XML, its joints and tree, its numbers and its meshes (the module's rules)."""
+    it: its file, its XML, its joints and tree, its numbers and its meshes (the module's rules),
+    with robot.toml's ``edits`` of single links' collision shapes (:mod:`robots.stand_ins`)."""
     real, data = _read_file(folder, name, MAX_URDF_BYTES, "a URDF", toml_file, "robot.urdf")
     file = str(real)
     try:
@@ -172,9 +175,11 @@ def urdf(folder: Path, name: str, toml_file: str, meshes_optional: bool) -> Chec
     if root.tag != "robot":
         raise RobotFileError(file, None, f"must be a <robot> element, got <{root.tag}>")
     _tree(root, file)
+    links = edits.apply(root)  # (before the numbers and the meshes: a stand-in is checked as the URDF's own)
     _numbers(root, file)
-    rewritten, unusable, collision_off = _meshes(root, folder, file, meshes_optional)
-    return CheckedUrdf(ET.tostring(root, encoding="unicode") if rewritten else text, unusable, collision_off)
+    rewritten, unusable, left_out = _meshes(root, folder, file, edits.meshes_optional)
+    edited = rewritten or bool(links)
+    return CheckedUrdf(ET.tostring(root, encoding="unicode") if edited else text, unusable, {**links, **left_out})
 
 
 def _scan(text: str, file: str) -> None:
@@ -354,21 +359,24 @@ def _numbers(root: ET.Element, file: str) -> None:
                 _floats(inertia, key, 1, math.inf, f"link {lname!r} <inertial> <inertia>", file)
 
 
-def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[bool, tuple[str, ...], str | None]:
+def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[bool, tuple[str, ...], dict[str, str]]:
     """Each mesh the URDF names, checked and renamed by its real path in the folder: whether any
-    was, the meshes that cannot be used and why (with ``optional``; else the first refuses the
-    arm), and why collisions cannot be checked (None: they can)."""
+    was, the meshes that cannot be used and why, and the links whose collision shapes were left
+    out for it (with ``optional``: each such ``<collision>`` element removed, the link's others
+    kept). Without ``optional`` a mesh that cannot be used refuses the arm, every one named."""
     unusable: list[str] = []
-    collision_off: str | None = None
+    left_out: dict[str, str] = {}
+    refused: list[tuple[str, str]] = []  # (field, problem) of each mesh that cannot be used
     seen: dict[Path, int] = {}  # a usable mesh: its size [bytes]
     bad: dict[Path, FileProblem] = {}  # a mesh that cannot be used: why (said once)
     rewritten = False
     for link in root.findall("link"):
+        lname = str(link.get("name"))
         for kind in ("collision", "visual"):
             for part in link.findall(kind):
                 for mesh in part.findall("geometry/mesh"):
                     name = mesh.get("filename", "")
-                    field = f"link {link.get('name')!r} <{kind}> <mesh filename>"
+                    field = f"link {lname!r} <{kind}> <mesh filename>"
                     real: Path | None = None
                     try:
                         real = _inside(folder, name)
@@ -381,25 +389,35 @@ def _meshes(root: ET.Element, folder: Path, file: str, optional: bool) -> tuple[
                                     f"the arm's meshes together are over {MAX_MESHES_BYTES:,} bytes", forbidden=False
                                 )
                     except FileProblem as p:
-                        if p.forbidden or not optional:
-                            hint = (
-                                ""
-                                if p.forbidden
-                                else " (to serve the arm without collision checks, set [collision] "
-                                "meshes_optional = true in robot.toml)"
-                            )
-                            raise RobotFileError(file, field, f"{name!r}: {p.problem}{hint}") from None
-                        said = f"{file}: {field}: {name!r}: {p.problem}"
+                        if p.forbidden:  # (never opened, whatever robot.toml says)
+                            raise RobotFileError(file, field, f"{name!r}: {p.problem}") from None
+                        problem = f"{name!r}: {p.problem}"
                         if real is None or real not in bad:
-                            unusable.append(said)
+                            unusable.append(f"{file}: {field}: {problem}")
+                            refused.append((field, problem))
                         if real is not None:
                             bad[real] = p
-                        if kind == "collision" and collision_off is None:
-                            collision_off = said
-                        continue
+                        if optional and kind == "collision":
+                            link.remove(part)
+                            rewritten = True
+                            left_out[lname] = f"not checked: {problem} ([collision] meshes_optional)"
+                        break
                     mesh.set("filename", str(real))
                     rewritten = True
-    return rewritten, tuple(unusable), collision_off
+    if refused and not optional:
+        more = (
+            f" (and {len(refused) - 1} more: {'; '.join(f'{f}: {p}' for f, p in refused[1:])})"
+            if len(refused) > 1
+            else ""
+        )
+        raise RobotFileError(
+            file,
+            refused[0][0],
+            f"{refused[0][1]}{more} (to serve the arm, stand in for the link with a primitive or skip it in "
+            "robot.toml's [collision], or set [collision] meshes_optional = true to leave such meshes out: "
+            "docs/robot-format.md)",
+        )
+    return rewritten, tuple(unusable), left_out
 
 
 def _mesh(real: Path) -> int:

@@ -59,8 +59,11 @@ class Robot:
         neutral: the rest configuration [rad].
         model: the Pinocchio model built from ``robot.urdf`` (mimic joints resolved).
         collision: the arm's collision shapes and world, or None: not checked, because
-            ``collision_off`` (robot.toml's ``[collision] meshes_optional = true`` and a mesh
-            that cannot be used).
+            ``collision_off`` (robot.toml's ``[collision] meshes_optional = true`` and shapes
+            that Pinocchio or coal cannot load).
+        collision_links: what robot.toml changed of single links' collision shapes (a
+            stand-in, a skip) or why a link's mesh was left out: link name -> what is said in
+            ``info`` (robots/stand_ins.py).
     """
 
     def __init__(
@@ -85,6 +88,7 @@ class Robot:
         roll_joint: RollJoint | None = None,
         collision: CollisionModel | None = None,
         collision_off: str | None = None,
+        collision_links: dict[str, str] | None = None,
         tracking_tolerance: FloatArray | None = None,
     ) -> None:
         self.name = name
@@ -107,6 +111,7 @@ class Robot:
         self.collision = collision
         # why collisions are not checked (robot.toml's [collision] meshes_optional, a mesh that cannot be used)
         self.collision_off = collision_off
+        self.collision_links = dict(collision_links or {})
         # [rad] per joint: the most a measured position may trail the plan (execution monitoring)
         self.tracking_tolerance = (
             np.full(len(joint_names), 0.15) if tracking_tolerance is None else np.asarray(tracking_tolerance, float)
@@ -383,5 +388,9 @@ class Robot:
             "wrist": self.chooses_pitch,
             "tool_pitch": "level" if self.geometry and self.geometry.level else "joints",
             "world": self.collision.describe() if self.collision is not None else None,
-            "collision": {"checked": self.collision is not None, "off": self.collision_off},
+            "collision": {
+                "checked": self.collision is not None,
+                "off": self.collision_off,
+                "links": self.collision_links,
+            },
         }

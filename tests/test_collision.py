@@ -315,14 +315,22 @@ def test_an_arm_whose_collision_mesh_cannot_be_read_loads_only_where_robot_toml_
     arm_copy: Callable[..., Path], caplog: pytest.LogCaptureFixture
 ) -> None:
     """An unreadable mesh refuses the arm (tests/test_user_arms.py); with ``[collision]
-    meshes_optional = true`` it is said, and the arm is served without collision checks."""
+    meshes_optional = true`` it is said and left out, and the arm is served with its other links,
+    the floor and its obstacles checked (as before, it was served with no check at all)."""
     box = '<collision><origin xyz="0.05 0 0"/><geometry><box size="0.1 0.05 0.02"/></geometry></collision>'
     mesh = '<collision><geometry><mesh filename="meshes/nosuch.stl"/></geometry></collision>'
     optional = ("[world]\n", "[collision]\nmeshes_optional = true\n\n[world]\n")
     with caplog.at_level(logging.WARNING, logger="armd.robots.catalogue"):
         arm = robots.load_folder(arm_copy("insomniac", [optional], urdf_edits=[(box, mesh)], as_name="m"))
-    assert arm.collision is None and any("served without collision checks" in r.getMessage() for r in caplog.records)
+    assert any("left out" in r.getMessage() and "nosuch.stl" in r.getMessage() for r in caplog.records)
+    plain = robots.load("insomniac")
+    assert arm.collision is not None and plain.collision is not None
+    (link,) = arm.describe()["collision"]["links"]
+    assert "nosuch.stl" in arm.describe()["collision"]["links"][link]
+    left = {(p.first, p.second) for p in plain.collision.pairs if link not in (p.first, p.second)}
+    assert {(p.first, p.second) for p in arm.collision.pairs} == left and left
     assert solvers.solve_ik(arm, arm.fk(arm.neutral)).status == "ok"
+    assert solvers.solve_ik(arm, [0.2, 0.0, -0.01]).status == "collision"  # (the floor: still checked)
 
 
 def test_a_target_reachable_only_with_the_gripper_turned_is_found() -> None:

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from armd import robots
+from armd import robots, solvers
 from armd.clients import ArmClient
 from armd.errors import RobotFileError
 from armd.robots import checks
@@ -243,6 +243,8 @@ UNUSABLE = [
 def test_a_mesh_that_cannot_be_used_refuses_the_arm_unless_robot_toml_allows(
     tmp_path: Path, filename: str, said: str
 ) -> None:
+    """Refused, naming the mesh; with ``meshes_optional`` the mesh alone is left out and said in
+    ``info``: the floor is still checked (a tool under it is never ``ok``)."""
     folder = _arm(tmp_path, "arm", _urdf(3, shape=_mesh(filename)), _toml(3))
     _unusable(folder)
     with pytest.raises(RobotFileError) as e:
@@ -250,9 +252,48 @@ def test_a_mesh_that_cannot_be_used_refuses_the_arm_unless_robot_toml_allows(
     assert said in e.value.problem and "meshes_optional = true" in e.value.problem, e.value
     (folder / "robot.toml").write_text(_toml(3, "[collision]\nmeshes_optional = true\n"))
     arm = robots.load_folder(folder)
-    off = arm.describe()["collision"]
-    assert arm.collision is None and off == {"checked": False, "off": arm.collision_off}
-    assert arm.collision_off is not None and said in arm.collision_off and filename in arm.collision_off
+    described = arm.describe()["collision"]
+    assert described["checked"] is True and described["off"] is None and arm.collision is not None
+    assert sorted(described["links"]) == ["l1", "l2", "l3"], described
+    assert all(said in why and filename in why for why in described["links"].values()), described
+    assert solvers.solve_ik(arm, [0.05, 0.0, -0.02]).status == "collision"  # (under the floor: never ok)
+
+
+def test_every_mesh_that_cannot_be_used_is_named_in_one_error(tmp_path: Path) -> None:
+    urdf = _urdf(3, shape=BOX).replace(BOX, _mesh("meshes/gone1.stl"), 1).replace(BOX, _mesh("meshes/gone2.stl"), 1)
+    folder = _arm(tmp_path, "arm", urdf, _toml(3))
+    with pytest.raises(RobotFileError) as e:
+        robots.load_folder(folder)
+    assert "gone1.stl" in e.value.problem and "gone2.stl" in e.value.problem and "1 more" in e.value.problem, e.value
+    assert e.value.field == "link 'l1' <collision> <mesh filename>"
+
+
+def test_robot_toml_stands_in_for_a_link_or_skips_it(tmp_path: Path) -> None:
+    """l2's mesh is gone: a box stands in for it, checked exactly as the same box in the URDF;
+    l3 skipped: in no pair. A link the URDF lacks is refused, naming robot.toml's field."""
+    native = robots.load_folder(_arm(tmp_path, "native", _urdf(3), _toml(3)))
+    urdf = _urdf(3)
+    urdf = urdf.replace(f'<link name="l2">{BOX}</link>', f'<link name="l2">{_mesh("meshes/gone.stl")}</link>')
+    urdf = urdf.replace(f'<link name="l3">{BOX}</link>', f'<link name="l3">{_mesh("meshes/heavy.stl")}</link>')
+    stand_in = '[collision]\nskip = ["l3"]\n[collision.stand_in.l2]\nbox = [0.02, 0.02, 0.03]\nxyz = [0, 0, 0.025]\n'
+    arm = robots.load_folder(_arm(tmp_path, "arm", urdf, _toml(3, stand_in)))
+    assert arm.collision is not None and native.collision is not None
+    links = arm.describe()["collision"]["links"]
+    assert links == {"l2": "box 0.02 x 0.02 x 0.03 m (robot.toml stand_in)", "l3": "not checked (robot.toml skip)"}
+    assert not [p for p in arm.collision.pairs if "l3" in (p.first, p.second)]
+    pairs = {(p.first, p.second) for p in arm.collision.pairs}
+    assert pairs == {(p.first, p.second) for p in native.collision.pairs if "l3" not in (p.first, p.second)}
+    rng = np.random.default_rng(3)
+    for q in rng.uniform(-1.5, 1.5, size=(300, 3)):
+        hit = arm.collision.first_contact(q)
+        same = native.collision.first_contact(q)
+        if same is not None and "l3" in (same.first, same.second):
+            continue
+        assert (hit is None) == (same is None), (q, hit, same)
+    bad = _toml(3, '[collision]\nskip = ["nosuch"]\n')
+    with pytest.raises(RobotFileError) as e:
+        robots.load_folder(_arm(tmp_path, "unknown", _urdf(3), bad))
+    assert e.value.field == "collision.skip" and "no link 'nosuch'" in e.value.problem, e.value
 
 
 def test_meshes_of_the_folder_load_and_are_checked(tmp_path: Path) -> None:
@@ -267,14 +308,14 @@ def test_meshes_of_the_folder_load_and_are_checked(tmp_path: Path) -> None:
     folder = _arm(tmp_path, "arm", urdf, _toml(3))
     _stl(folder / "meshes" / "tet.stl", 4)
     arm = robots.load_folder(folder)
-    assert arm.collision is not None and arm.describe()["collision"] == {"checked": True, "off": None}
+    assert arm.collision is not None and arm.describe()["collision"] == {"checked": True, "off": None, "links": {}}
     paths = {g.meshPath for g in arm.collision.geometry.geometryObjects if g.meshPath}
     assert paths == {str((folder / "meshes" / "tet.stl").resolve())}
 
 
 def test_the_catalogue_passes_its_own_checks() -> None:
     for name in robots.names():
-        assert robots.load(name).describe()["collision"] == {"checked": True, "off": None}
+        assert robots.load(name).describe()["collision"] == {"checked": True, "off": None, "links": {}}
 
 
 # -- one bad arm, the others served -------------------------------------------------------------
@@ -312,10 +353,11 @@ def test_the_service_serves_the_good_arms_and_says_which_checks_are_off(tmp_path
     service = Service(session, mine, prefix="users")
     try:
         with ArmClient(router, prefix="users", timeout=10.0) as client:
-            assert client.info("good")["collision"] == {"checked": True, "off": None}
-            info = client.info("optional")
-            assert info["collision"]["checked"] is False and info["world"] is None
-            assert "claims.stl" in info["collision"]["off"] and "1,000,000,000 triangles" in info["collision"]["off"]
+            assert client.info("good")["collision"] == {"checked": True, "off": None, "links": {}}
+            info = client.info("optional")  # (its mesh left out: the floor still checked)
+            assert info["collision"]["checked"] is True and info["world"] is not None
+            said = info["collision"]["links"]["l1"]
+            assert "claims.stl" in said and "1,000,000,000 triangles" in said
             q = np.array([0.1, 0.5, -0.3])
             assert np.allclose(client.fk("good", q.tolist()).position, arms["good"].fk(q))
     finally:
@@ -335,6 +377,8 @@ def test_armd_catalogue_lists_the_good_arms_and_names_the_bad_one(tmp_path: Path
     )
     assert out.returncode == 0, out.stderr
     assert "good:" in out.stdout and "optional:" in out.stdout and "insomniac:" in out.stdout
+    said = [line for line in out.stdout.splitlines() if line.startswith("  collision of l1: not checked")]
+    assert len(said) == 1 and "claims.stl" in said[0], out.stdout  # (the optional arm's mesh, left out)
     assert "huge:" not in out.stdout
     said = [line for line in out.stderr.splitlines() if "huge" in line]
     assert len(said) == 1 and "refused" in said[0] and f"over {checks.MAX_JOINTS} joints" in said[0], out.stderr
