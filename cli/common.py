@@ -8,6 +8,7 @@ import contextlib
 import logging
 import sys
 import threading
+from collections.abc import Iterator
 from typing import Any
 
 from armd import robots
@@ -120,13 +121,36 @@ def open_bus(kind: str, port: str, baud: int) -> Any:
     return DynamixelBus(port, baud)
 
 
-def signals() -> threading.Event:
-    """An event set by SIGTERM or SIGINT (Ctrl-C)."""
+class Stop(threading.Event):
+    """Set by SIGTERM or SIGINT (Ctrl-C) (:func:`signals`). Inside :meth:`interrupting`, the
+    signal also ends what the main thread is doing at once (SystemExit, exit status 0): a
+    service's warm-up, which may take long on an arm with heavy meshes, never delays a stop."""
+
+    interrupt = False
+
+    @contextlib.contextmanager
+    def interrupting(self) -> Iterator[None]:
+        self.interrupt = True
+        try:
+            if self.is_set():
+                raise SystemExit(0)
+            yield
+        finally:
+            self.interrupt = False
+
+    def signalled(self, *_: object) -> None:
+        self.set()
+        if self.interrupt:
+            raise SystemExit(0)
+
+
+def signals() -> Stop:
+    """A :class:`Stop` set by SIGTERM or SIGINT (Ctrl-C)."""
     import signal
 
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    stop = Stop()
+    signal.signal(signal.SIGTERM, stop.signalled)
+    signal.signal(signal.SIGINT, stop.signalled)
     return stop
 
 

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import threading
 from typing import Any
@@ -24,6 +25,8 @@ from .common import (
     wait_for_signal,
     where,
 )
+
+log = logging.getLogger(__name__)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -54,9 +57,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     stop = signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
     session = open_session(conf)
     try:
-        service = Service(session, arms, prefix=args.prefix, limits=limits, workers=args.workers)
+        with stop.interrupting():  # (a signal during the warm-up ends it at once)
+            service = Service(session, arms, prefix=args.prefix, limits=limits, workers=args.workers)
+    except SystemExit:
+        log.info("stopped during the warm-up")
+        close_session(session)  # a Zenoh session left open would keep the process from exiting
+        raise
     except BaseException:
-        session.close()  # a Zenoh session left open would keep the process from exiting
+        close_session(session)
         raise
     sims = []
     if args.sim:

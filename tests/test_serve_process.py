@@ -252,3 +252,72 @@ def test_serve_refuses_a_nonsense_limit() -> None:
         timeout=60,
     )
     assert r.returncode == 1 and "deadline must be" in r.stderr and "Traceback" not in r.stderr
+
+
+def _ball_stl(path: Path, n: int) -> int:
+    """A unit sphere as a binary STL of 2 n^2 triangles (a latitude-longitude grid)."""
+    theta, phi = np.meshgrid(np.linspace(0, np.pi, n + 1), np.linspace(0, 2 * np.pi, n + 1), indexing="ij")
+    v = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], -1)
+    a, b, c, d = v[:-1, :-1], v[1:, :-1], v[1:, 1:], v[:-1, 1:]
+    tris = np.concatenate([np.stack([a, b, c], -2).reshape(-1, 3, 3), np.stack([a, c, d], -2).reshape(-1, 3, 3)])
+    rows = np.zeros(len(tris), dtype=[("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attribute", "<u2")])
+    rows["vertices"] = tris
+    path.write_bytes(b"\0" * 80 + len(tris).to_bytes(4, "little") + rows.tobytes())
+    return len(tris)
+
+
+def _heavy_arm(folder: Path) -> None:
+    """Six joints (the numerical IK's arm), each link a sphere of 238,050 triangles: coal checks it
+    in milliseconds, and the service's warm-up of it takes seconds (7.6 s on an idle 2-core
+    machine), as a vendor's arm with its detailed meshes does (the PiPER's: a minute)."""
+    (folder / "meshes").mkdir(parents=True)
+    assert _ball_stl(folder / "meshes" / "ball.stl", 345) == 238_050
+    axes = ["0 0 1", "0 1 0", "0 1 0", "1 0 0", "0 1 0", "1 0 0"]
+    mesh = '<mesh filename="meshes/ball.stl" scale="0.03 0.03 0.03"/>'
+    links = ['<link name="base"/>'] + [
+        f'<link name="l{i}"><collision><origin xyz="0 0 0.05"/><geometry>{mesh}</geometry></collision></link>'
+        for i in range(1, 7)
+    ]
+    joints = [
+        f'<joint name="j{i}" type="revolute"><parent link="{"base" if i == 1 else f"l{i - 1}"}"/><child link="l{i}"/>'
+        f'<origin xyz="0 0 {0.05 if i == 1 else 0.1}"/><axis xyz="{axes[i - 1]}"/>'
+        '<limit lower="-2" upper="2" velocity="2" effort="1"/></joint>'
+        for i in range(1, 7)
+    ]
+    tool = '<link name="tool"/><joint name="tool_fixed" type="fixed"><parent link="l6"/><child link="tool"/></joint>'
+    (folder / "robot.urdf").write_text(f'<robot name="heavy">{"".join(links)}{"".join(joints)}{tool}</robot>')
+    (folder / "robot.toml").write_text(
+        '[robot]\njoints = ["j1", "j2", "j3", "j4", "j5", "j6"]\nneutral = [0.0, 0.3, 0.6, 0.0, 0.3, 0.0]\n'
+    )
+
+
+def test_a_sigterm_during_the_warm_up_ends_the_service_at_once(tmp_path: Path) -> None:
+    """An arm whose warm-up takes seconds (heavy meshes): a SIGTERM while it warms up ends the
+    service within 2 s (it waited for the whole warm-up: 54 s with the PiPER's meshes)."""
+    _heavy_arm(tmp_path / "arms" / "heavy")
+    serve = ["serve", "--listen", f"tcp/127.0.0.1:{free_port()}", "--robots-dir", str(tmp_path / "arms")]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "armd.cli", *serve],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stderr is not None
+        said = []
+        while not any("warming up" in line for line in said) and proc.poll() is None:
+            said.append(proc.stderr.readline())
+        assert proc.poll() is None, said
+        time.sleep(0.5)  # (into the heavy arm's warm-up)
+        sent = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(timeout=60)
+        took = time.monotonic() - sent
+        out, err = proc.communicate(timeout=10)
+        assert code == 0 and took < 2.0, (code, took, err[-2000:])
+        assert "armd serving" not in out and "stopped during the warm-up" in err and "Traceback" not in err, err
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
