@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import os
 import sys
 import threading
 from collections.abc import Iterator
@@ -123,25 +124,36 @@ def open_bus(kind: str, port: str, baud: int) -> Any:
 
 class Stop(threading.Event):
     """Set by SIGTERM or SIGINT (Ctrl-C) (:func:`signals`). Inside :meth:`interrupting`, the
-    signal also ends what the main thread is doing at once (SystemExit, exit status 0): a
-    service's warm-up, which may take long on an arm with heavy meshes, never delays a stop."""
+    signal also ends the process at once, exit status 0: a service's warm-up (the compiler's on
+    a first start without the native build, about a minute) never delays a stop. It ends it
+    with ``os._exit``, as nothing is declared yet and nothing is to be saved: an exception would
+    not do, as the compiler's callbacks (ctypes) swallow it."""
 
-    interrupt = False
+    interrupt = ""  # what is interrupted: said in the log
 
     @contextlib.contextmanager
-    def interrupting(self) -> Iterator[None]:
-        self.interrupt = True
+    def interrupting(self, what: str) -> Iterator[None]:
+        if self.is_set():
+            self._exit(what)
+        self.interrupt = what
         try:
-            if self.is_set():
-                raise SystemExit(0)
             yield
         finally:
-            self.interrupt = False
+            self.interrupt = ""
 
     def signalled(self, *_: object) -> None:
         self.set()
         if self.interrupt:
-            raise SystemExit(0)
+            self._exit(self.interrupt)
+
+    @staticmethod
+    def _exit(what: str) -> None:
+        log.info("stopped during %s", what)
+        for handler in logging.getLogger().handlers:
+            handler.flush()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
 
 
 def signals() -> Stop:

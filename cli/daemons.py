@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 import threading
 from typing import Any
@@ -25,8 +24,6 @@ from .common import (
     wait_for_signal,
     where,
 )
-
-log = logging.getLogger(__name__)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -57,14 +54,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     stop = signals()  # before the line that says it is up: a SIGTERM right after it stops it cleanly
     session = open_session(conf)
     try:
-        with stop.interrupting():  # (a signal during the warm-up ends it at once)
+        with stop.interrupting("the warm-up"):  # (a signal meanwhile ends the process at once)
             service = Service(session, arms, prefix=args.prefix, limits=limits, workers=args.workers)
-    except SystemExit:
-        log.info("stopped during the warm-up")
-        close_session(session)  # a Zenoh session left open would keep the process from exiting
-        raise
     except BaseException:
-        close_session(session)
+        close_session(session)  # a Zenoh session left open would keep the process from exiting
         raise
     sims = []
     if args.sim:

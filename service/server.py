@@ -41,7 +41,7 @@ import math
 import threading
 import time
 import uuid
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -60,6 +60,7 @@ from armd.errors import (
     UnknownVerb,
 )
 from armd.robots import Robot
+from armd.robots import names as catalogue_names
 
 from .deadline import Deadline
 from .handlers import Handlers, unread_request
@@ -171,12 +172,20 @@ class Service:
         # behind the compiler (a minute on a cold cache) and time out, and with replicas this one
         # would take queries another could answer. Until it is declared, clients are told at once
         # that nothing serves the key, and other replicas answer.
+        # The catalogue's arms take every compiled path, in a second or two: they are warmed up
+        # first; any other arm (a user's, a vendor's with heavy meshes: a minute) is warmed up
+        # after the service is declared, on a thread of its own, so that it delays nothing.
+        catalogue = set(catalogue_names())
+        first = {n: a for n, a in self.arms.items() if n in catalogue} or dict(list(self.arms.items())[:1])
+        later = [a for n, a in self.arms.items() if n not in first]
         started = time.monotonic()
         log.info(
-            "armd service %s warming up %s (compiling on a first start: about a minute)", self.id, ", ".join(self.arms)
+            "armd service %s warming up %s (compiling on a first start: about a minute)", self.id, ", ".join(first)
         )
-        self._warm_up()
+        self._warm_up(first.values())
         log.info("warmed up in %.1f s", time.monotonic() - started)
+        self._closed = threading.Event()  # (set by close(): a warm-up in the background stops)
+        self._warming = threading.Thread(target=self._warm_later, args=(later,), name="armd-warm", daemon=True)
         # (which replica serves what changes the arms: docs/deployment.md; before the queryable)
         self._session = session
         self._queryable: Any = None
@@ -205,6 +214,8 @@ class Service:
             session.liveliness().declare_token(f"{self.prefix}/service/{self.id}"),
         ]
         log.info("armd service %s serving %s under %s/", self.id, ", ".join(self.arms), self.prefix)
+        if later:
+            self._warming.start()
 
     def _lead(self, leading: bool) -> None:
         """The queryable declared anew, *complete* while this replica leads (a default query
@@ -253,15 +264,25 @@ class Service:
                 out[name] = _runtime(self.handlers.world(arm, {}, Deadline(time.monotonic(), ADOPT_S)))
         return out
 
-    def _warm_up(self) -> None:
+    def _warm_up(self, arms: Iterable[Robot]) -> None:
         """Compile (or load from Numba's cache) the solver's and the planner's code, and build each
         arm's solver state, now rather than on the first requests: compiling holds the GIL for
         seconds on a cold cache, and every request in flight would wait behind it. Each arm
         takes every path a request can: IK reachable and not, with an approach, batches with
         one approach and with one per target, joint plans from rest and while moving, a stop,
         a line."""
-        for arm in self.arms.values():
+        for arm in arms:
             _warm_arm(arm)
+
+    def _warm_later(self, arms: list[Robot]) -> None:
+        """:meth:`_warm_up` of ``arms`` while the service serves (each is served meanwhile: a
+        request of its own builds what it needs on the way), until :meth:`close`."""
+        for arm in arms:
+            started = time.monotonic()
+            _warm_arm(arm, self._closed.is_set)
+            if self._closed.is_set():
+                return
+            log.info("%s warmed up in %.1f s (in the background)", arm.name, time.monotonic() - started)
 
     # -- queries ------------------------------------------------------------------------
 
@@ -704,6 +725,7 @@ class Service:
             }
 
     def close(self) -> None:
+        self._closed.set()
         self.replicas.close()
         with self._queryable_lock:
             queryable, self._queryable, self._closing = self._queryable, None, True
@@ -762,22 +784,27 @@ def _attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:
         return None
 
 
-def _warm_arm(arm: Robot) -> None:
+def _warm_arm(arm: Robot, stop: Callable[[], bool] = lambda: False) -> None:
+    """Every path a request can take on ``arm`` (:meth:`Service._warm_up`); ``stop()``, asked
+    between paths, ends it early."""
     from armd import planning, solvers
+
+    def attempt(fn: Any, *args: Any, **kwargs: Any) -> Any:
+        return None if stop() else _attempt(fn, *args, **kwargs)
 
     home = arm.fk(arm.neutral)
     far = 10.0 * home + 1.0  # unreachable: the closest-point code and the arm's atlas
-    _attempt(solvers.solve_ik, arm, home)
-    _attempt(solvers.solve_ik, arm, far)
-    _attempt(solvers.solve_ik_batch, arm, [home, far])
+    attempt(solvers.solve_ik, arm, home)
+    attempt(solvers.solve_ik, arm, far)
+    attempt(solvers.solve_ik_batch, arm, [home, far])
     if arm.geometry is not None and arm.geometry.has_wrist:
-        _attempt(solvers.solve_ik, arm, home, approach="parallel")
-        _attempt(solvers.solve_ik, arm, far, approach="perpendicular")
-        _attempt(solvers.solve_ik_batch, arm, [home, home], approach=[0.0, 0.1])
+        attempt(solvers.solve_ik, arm, home, approach="parallel")
+        attempt(solvers.solve_ik, arm, far, approach="perpendicular")
+        attempt(solvers.solve_ik_batch, arm, [home, home], approach=[0.0, 0.1])
     mid = (arm.limits.lower + arm.limits.upper) / 2
     if arm.limits.contains(mid):
-        there = _attempt(planning.plan, arm, arm.neutral, mid)
+        there = attempt(planning.plan, arm, arm.neutral, mid)
         if there is not None:
-            _attempt(planning.plan_stop, arm, there.at(0.2))
-            _attempt(planning.plan, arm, there.at(0.2), arm.neutral)  # from a moving state
-    _attempt(planning.plan, arm, arm.neutral, {"target": (home - 0.01).tolist()}, path="line")
+            attempt(planning.plan_stop, arm, there.at(0.2))
+            attempt(planning.plan, arm, there.at(0.2), arm.neutral)  # from a moving state
+    attempt(planning.plan, arm, arm.neutral, {"target": (home - 0.01).tolist()}, path="line")
