@@ -105,7 +105,7 @@ def cpu(fn: object, batches: int) -> float:
 
 def pairs(world: CompiledWorld) -> str:
     """The pairs checked: compiled, and on coal (meshes) if any."""
-    return f"{len(world.shapes.pairs)}" + (f" + {len(world.coal_pairs)} on coal" if world.coal_pairs else "")
+    return f"{world.n_compiled}" + (f" + {len(world.coal_pairs)} on coal" if world.coal_pairs else "")
 
 
 def loop(arm: robots.Robot, targets: np.ndarray) -> str:
@@ -120,7 +120,7 @@ def stages(arm: robots.Robot, targets: np.ndarray, batches: int) -> str:
     state = arm_state(arm)
     assert arm.collision is not None
     world = compiled(arm.collision)
-    if state.arrays is None:
+    if state.packed_arm is None:
         whole = cpu(lambda: solvers.solve_ik_batch(arm, targets), batches)
         return f"| {arm.name} | {pairs(world)} | - | - | {1e6 * whole / len(targets):.2f} |"
     m, n = targets.shape[0], arm.nq
@@ -130,7 +130,7 @@ def stages(arm: robots.Robot, targets: np.ndarray, batches: int) -> str:
     codes, ids, pitch, err = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m)
 
     def closed_form() -> None:
-        solve_many(state.arrays, refs, targets, prefs, q, codes, pitch, ids, err, reached)
+        solve_many(state.packed_arm, refs, targets, prefs, q, codes, pitch, ids, err, reached)
 
     closed_form()
     times = [

@@ -35,12 +35,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from armd import robots
 from armd.robots.collision import CollisionModel
 from armd.solvers import jit
-from armd.solvers.collide import Shapes, first_collisions, min_distances
+from armd.solvers.collide import first_collisions, min_distances
+from armd.solvers.packed import Packed
 from armd.solvers.world import compile_world
 from bench.collision import boxes, timed
 
 
-def in_compiled_code(shapes: Shapes, qs: np.ndarray, nearest: bool, repeat: int) -> np.ndarray:
+def in_compiled_code(shapes: Packed, qs: np.ndarray, nearest: bool, repeat: int) -> np.ndarray:
     """Each configuration's time [us] inside one compiled call over ``repeat`` copies of it (its
     first contact; ``nearest``: its clearance)."""
     out = np.empty(len(qs))
@@ -62,8 +63,8 @@ def row(name: str, world: str, cm: CollisionModel, qs: np.ndarray, repeat: int) 
     assert not cw.on_coal, f"{name}: pairs left to coal: {cw.on_coal}"
     for q in qs[:50]:  # warm up
         cm.first_contact(q), cw.first_contact(q), cm.clearance(q), cw.clearance(q)
-    in_compiled_code(cw.shapes, qs[:5], False, repeat)
-    in_compiled_code(cw.shapes, qs[:5], True, repeat)
+    in_compiled_code(cw.packed_shapes, qs[:5], False, repeat)
+    in_compiled_code(cw.packed_shapes, qs[:5], True, repeat)
     hits = sum(cw.first_contact(q) is not None for q in qs) / len(qs)
     mismatched = sum(cw.first_contact(q) != cm.first_contact(q) for q in qs)
     cells = []
@@ -73,7 +74,7 @@ def row(name: str, world: str, cm: CollisionModel, qs: np.ndarray, repeat: int) 
     ):
         coal = timed(coal_fn, qs)
         from_python = timed(compiled_fn, qs)
-        inside = in_compiled_code(cw.shapes, qs, nearest, repeat)
+        inside = in_compiled_code(cw.packed_shapes, qs, nearest, repeat)
         cells.append(
             f"| {name} | {world} | {len(cm.pairs)} | {hits:.0%} "
             f"| {np.median(coal):.2f} | {np.percentile(coal, 99):.2f} "

@@ -119,7 +119,7 @@ def run(arm: robots.Robot, method: str, starts: np.ndarray, targets: np.ndarray)
             iters.append(k)
             ok += np.linalg.norm(arm.fk(q) - t) <= 1e-9 and arm.limits.contains(q, tol=1e-12)
     elif method == "armd":
-        chain = arm_state(arm).chain
+        chain = arm_state(arm).packed_chain
         for q0, t in zip(starts, targets, strict=True):
             q = q0.copy()
             t0 = time.perf_counter_ns()

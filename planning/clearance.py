@@ -51,7 +51,7 @@ def check_clear(robot: Robot, times: FloatArray, position: FloatArray, what: str
     T = np.ascontiguousarray(times, dtype=float)
     if not world.coal_pairs:  # every pair a primitive one: the whole walk in one compiled call
         out = np.empty(P.shape[1] + 3)
-        p = int(clear_walk(world.shapes, T, P, model.travel, CONTACT, BISECTIONS, out))
+        p = int(clear_walk(world.packed_shapes, T, P, model.travel, CONTACT, BISECTIONS, out))
         if p >= 0:
             _contact(what, world.pairs[int(world.compiled_pairs[p])], out[3:], float(out[0]), out[2] == 1.0)
         return int(out[1])

@@ -27,8 +27,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
-from armd.solvers.collide import NEAREST, Shapes, check
+from armd.solvers.collide import NEAREST, check, shapes_of
 from armd.solvers.jit import entry, jit
+from armd.solvers.packed import Packed
 
 IntArray = NDArray[np.int64]
 
@@ -148,7 +149,7 @@ def all_clear(
 
 @entry("i8(Shapes, f8[:], f8[:, :], f8[:], f8, i8, f8[:])")
 def clear_walk(
-    shapes: Shapes,
+    packed_shapes: Packed,
     T: FloatArray,
     P: FloatArray,
     travel: FloatArray,
@@ -157,10 +158,12 @@ def clear_walk(
     out: FloatArray,
 ) -> int:
     """:func:`planning.clearance.check_clear`'s walk along the polyline through the samples ``P``
-    (rows, at times ``T`` [s]) in one call, every pair compiled (``shapes``): the row of
-    ``shapes.pairs`` first found nearer than ``contact`` [m] (narrowed down by ``bisections``),
-    or -1: clear. ``out`` (n + 3,): the time [s] of the contact, the number of checks made,
-    1 if it was found at the start (else 0), and the configuration there."""
+    (rows, at times ``T`` [s]) in one call, every pair compiled (``packed_shapes``: the
+    :class:`~armd.solvers.collide.Shapes` packed): the row of the shapes' ``pairs`` first found
+    nearer than ``contact`` [m] (narrowed down by ``bisections``), or -1: clear. ``out``
+    (n + 3,): the time [s] of the contact, the number of checks made, 1 if it was found at the
+    start (else 0), and the configuration there."""
+    shapes = shapes_of(packed_shapes)
     m, n = P.shape[0], P.shape[1]
     s = np.zeros(m)  # the travel bound [m] from the first sample to each
     for k in range(1, m):

@@ -5,7 +5,8 @@ first, with a code: ``EXACT`` (at the first preferred pitch that works, or any p
 arm without a wrist), ``NEAREST_PITCH`` (no preferred pitch works; at the reachable pitch
 nearest them), ``NONE`` (no branch within limits at any pitch: the QP takes over). It works in
 the family's angles; ``solve_point`` (one target) and ``solve_many`` (the batch IK, compiled
-in a loop) take and give the URDF's (:mod:`solvers.arrays`).
+in a loop) take and give the URDF's (:mod:`solvers.arrays`). The entry points take the arm (and
+its world) packed (:mod:`solvers.packed`).
 """
 
 from __future__ import annotations
@@ -17,11 +18,12 @@ from numpy.typing import NDArray
 
 from armd.robots.types import FloatArray
 
-from .arrays import Arm, Family, family_pitch, from_family, to_family, view
-from .collide import FIRST, Shapes, check
+from .arrays import Arm, Family, arm_of, family_pitch, from_family, to_family, view
+from .collide import FIRST, check, shapes_of
 from .family import configs_at, formula_errors, rank_by_distance
 from .geometric import family_fk
 from .jit import entry, jit
+from .packed import Packed
 from .pitch import BOUNDARY_TOL, boundary_pitch, grid_pitch
 
 IntArray = NDArray[np.int64]
@@ -145,7 +147,7 @@ def _solve_mapped(
 
 @entry("Tuple((i8, i8, f8, f8))(Arm, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], f8[:, :], f8[:])")
 def solve_point(
-    arm: Arm,
+    packed_arm: Packed,
     ref: FloatArray,
     point: FloatArray,
     prefs: FloatArray,
@@ -160,14 +162,16 @@ def solve_point(
     ``point`` (3,) in ``base`` and preferred tool pitches ``prefs``, nearest the seed first, into
     ``qs`` (4, n) (the URDF's angles), ``ids`` and ``errs`` (the formula's errors); the first
     branch's tool point into ``reached``. Returns (code, branches, pitch used, the first branch's
-    tool pitch, not wrapped). ``work`` (4, 5) is scratch."""
+    tool pitch, not wrapped). ``work`` (4, 5) is scratch. ``packed_arm``: the :class:`Arm`
+    packed (:func:`solvers.packed.pack`), as every entry point here takes it."""
+    arm = arm_of(packed_arm)
     f, zero, offset = view(arm, ref)
     return _solve_mapped(arm, f, zero, offset, ref, point, prefs, qs, ids, errs, work, reached)
 
 
 @entry("void(Arm, f8[:, :], f8[:, :], f8[:, :], f8[:, :], i8[:], f8[:], i8[:], f8[:], f8[:, :])")
 def solve_many(
-    arm: Arm,
+    packed_arm: Packed,
     refs: FloatArray,
     points: FloatArray,
     prefs: FloatArray,
@@ -182,6 +186,7 @@ def solve_many(
     preferred pitches ``prefs`` row (m, k): the nearest branch into ``q_out``, its code, its tool
     pitch (not wrapped; the pitch used where there is no branch), branch id, formula error and
     tool point."""
+    arm = arm_of(packed_arm)
     n = refs.shape[1]
     qs = np.empty((4, n))
     ids = np.empty(4, dtype=np.int64)
@@ -236,8 +241,8 @@ def _in_family(
 
 @entry("void(Arm, Shapes, f8[:, :], f8[:, :], f8[:, :], f8[:], f8, i8[:], f8[:, :], i8[:])")
 def clear_branches(
-    arm: Arm,
-    shapes: Shapes,
+    packed_arm: Packed,
+    packed_shapes: Packed,
     refs: FloatArray,
     points: FloatArray,
     prefs: FloatArray,
@@ -254,6 +259,7 @@ def clear_branches(
     pitch, those :func:`solvers.ik._alternatives` tries; else none), the first clear one of the
     branches within ``tol`` [m]. Into the row of ``q_out`` and ``branch_out`` (-1 where none
     is: the single-target path's, with its other starts)."""
+    arm, shapes = arm_of(packed_arm), shapes_of(packed_shapes)
     n = refs.shape[1]
     qs = np.empty((4, n))
     ids = np.empty(4, dtype=np.int64)
@@ -297,7 +303,7 @@ def clear_branches(
 
 @entry("i8(Arm, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], i8[:])")
 def solve_pitches(
-    arm: Arm,
+    packed_arm: Packed,
     ref: FloatArray,
     point: FloatArray,
     pitches: FloatArray,
@@ -311,6 +317,7 @@ def solve_pitches(
     into ``qs`` (4 k, n), ``ids`` and ``errs``, how many at each into ``counts`` (k,) (0: that
     pitch does not reach ``point``, or not exactly). Returns how many in all. (When every branch
     on a target collides, the other pitches' in one call.)"""
+    arm = arm_of(packed_arm)
     n = ref.shape[0]
     q4, id4, err4 = np.empty((4, n)), np.empty(4, dtype=np.int64), np.empty(4)
     work, reached, one = np.empty((4, 5)), np.empty(3), np.empty(1)
@@ -330,8 +337,8 @@ def solve_pitches(
 
 @entry("Tuple((i8, i8, f8, f8))(Arm, Shapes, f8[:], f8[:], f8[:], f8[:, :], i8[:], f8[:], f8[:, :], f8[:], i8[:])")
 def solve_point_clear(
-    arm: Arm,
-    shapes: Shapes,
+    packed_arm: Packed,
+    packed_shapes: Packed,
     ref: FloatArray,
     point: FloatArray,
     prefs: FloatArray,
@@ -346,6 +353,7 @@ def solve_point_clear(
     in the same call: the first pair in contact of each into ``hits`` (4,) (-1: clear). The
     solver's common case, a clear answer on an arm whose world is all primitive shapes, in one
     call (:mod:`armd.solvers.collide`)."""
+    arm, shapes = arm_of(packed_arm), shapes_of(packed_shapes)
     f, zero, offset = view(arm, ref)
     code, m, phi, pitch = _solve_mapped(arm, f, zero, offset, ref, point, prefs, qs, ids, errs, work, reached)
     if m > 0 and shapes.pairs.shape[0] > 0:

@@ -4,7 +4,9 @@
 (:class:`~armd.solvers.arrays.Arm`, where the arm is of the closed-form family), the exact
 model's chain (:class:`~armd.solvers.kinematics.Chain`), the atlas (in-limit configurations
 spread over joint space with their tool points: starts for the closest-point search and the
-numerical IK) and per-thread scratch buffers.
+numerical IK) and per-thread scratch buffers. Each bundle is kept twice over the same memory:
+packed (:mod:`solvers.packed`: what the compiled entry points take) and as its named tuple of
+views of the packed arrays (what Python reads).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from .atlas import Atlas, make_atlas
 from .geometric import arm_pose
 from .kinematics import Chain
 from .kinematics import pose as chain_pose
+from .packed import Packed, pack, unpacked
 
 ATLAS_SIZE = 4096
 
@@ -47,14 +50,18 @@ class ArmState:
     """Per-robot solver state (see the module's doc)."""
 
     robot: Robot
-    arrays: Arm | None  # the compiled code's arrays; None outside the family
-    chain: Chain  # the exact model, compiled
+    arrays: Arm | None  # the compiled code's arrays (views of packed_arm); None outside the family
+    chain: Chain  # the exact model, compiled (views of packed_chain)
     weights: FloatArray  # 1 / vmax [s/rad]: joint distance ~ time to get there
     exact: bool  # the family's formula is the URDF's FK (to 1e-12 m): branch errors by formula
-    atlas: Atlas  # in-limit configurations and their tool points, on a grid
+    atlas: Atlas  # in-limit configurations and their tool points, on a grid (views of packed_atlas)
     reach: float  # [m] the farthest atlas tool point from the base origin: beyond, a target is taken as far
     rolls_tool: bool  # the wrist roll moves the tool point (the closed form holds it at the seed's)
     buffers: Buffers
+    packed_arm: Packed | None  # the bundles as the entry points take them (solvers.packed)
+    packed_family: Packed | None  # (the arm's family on its own: closest_box, refine_family)
+    packed_chain: Packed
+    packed_atlas: Packed
 
     @property
     def family(self) -> Family | None:
@@ -65,9 +72,9 @@ class ArmState:
         it is the URDF's FK (checked against Pinocchio when the arm was first seen), else the
         URDF's chain (compiled)."""
         reached = np.empty(3)
-        if self.arrays is None or not self.exact:
-            return reached, wrap(chain_pose(self.chain, q, reached))
-        return reached, wrap(arm_pose(self.arrays, q, reached))
+        if self.packed_arm is None or not self.exact:
+            return reached, wrap(chain_pose(self.packed_chain, q, reached))
+        return reached, wrap(arm_pose(self.packed_arm, q, reached))
 
 
 _lock = threading.Lock()
@@ -142,7 +149,7 @@ def family_arrays(robot: Robot, g: Geometry) -> Arm:
     )
 
 
-def chain_of(robot: Robot) -> Chain:
+def exact_chain(robot: Robot) -> Chain:
     """The compiled code's exact model of ``robot`` (:mod:`solvers.kinematics`): the joints from
     the base frame to the tool frame as Pinocchio's model has them, and the arm's limits."""
     model = robot.model
@@ -202,28 +209,35 @@ def _atlas(robot: Robot, n: int = ATLAS_SIZE) -> FloatArray:
 
 def _build(robot: Robot) -> ArmState:
     g = robot.geometry
-    arrays = family_arrays(robot, g) if g is not None else None
+    packed_arm = pack(family_arrays(robot, g)) if g is not None else None
+    arrays = None if packed_arm is None else unpacked(packed_arm)
     exact = False
-    if arrays is not None:
+    if packed_arm is not None:
         rng = np.random.default_rng(0)
         qs = rng.uniform(robot.limits.lower, robot.limits.upper, size=(64, robot.nq))
         out = np.empty(3)
         worst = 0.0
         for q in qs:
-            arm_pose(arrays, np.ascontiguousarray(q), out)
+            arm_pose(packed_arm, np.ascontiguousarray(q), out)
             worst = max(worst, float(np.max(np.abs(out - robot.fk(q)))))
         exact = worst < 1e-12
     atlas_q = _atlas(robot)
-    atlas = make_atlas(atlas_q, np.array([robot.fk(q) for q in atlas_q]))
+    packed_atlas = pack(make_atlas(atlas_q, np.array([robot.fk(q) for q in atlas_q])))
+    atlas = unpacked(packed_atlas)
+    packed_chain = pack(exact_chain(robot))
     roll_model = None if g is None else g.roll_model
     return ArmState(
-        robot,
-        arrays,
-        chain_of(robot),
-        1.0 / robot.limits.velocity,
-        exact,
-        atlas,
-        float(np.max(np.linalg.norm(atlas.p, axis=1))),
-        g is not None and g.roll is not None and roll_model is not None and roll_model.reach > 1e-9,
-        Buffers(robot.nq),
+        robot=robot,
+        arrays=arrays,
+        chain=unpacked(packed_chain),
+        weights=1.0 / robot.limits.velocity,
+        exact=exact,
+        atlas=atlas,
+        reach=float(np.max(np.linalg.norm(atlas.p, axis=1))),
+        rolls_tool=g is not None and g.roll is not None and roll_model is not None and roll_model.reach > 1e-9,
+        buffers=Buffers(robot.nq),
+        packed_arm=packed_arm,
+        packed_family=None if arrays is None else pack(arrays.family),
+        packed_chain=packed_chain,
+        packed_atlas=packed_atlas,
     )

@@ -5,7 +5,8 @@ pitch link horizontal at 0, positive lifting; the yaw about +z through the origi
 compiled solver works in it. :class:`Arm` is what Python hands over: the family, and the map
 between the family's angles and the URDF's (``family = sign q + zero``, the yaw axis's place in
 ``base``, the tool pitch's offset from the family's, and a wrist roll that moves the tool),
-so that joint angles stay the URDF's. :func:`view` gives the family for a joint vector (a roll
+so that joint angles stay the URDF's; entry points take them packed (:mod:`solvers.packed`),
+and :func:`arm_of` and :func:`family_at` unpack them. :func:`view` gives the family for a joint vector (a roll
 that moves the tool point changes the last link), :func:`to_family` and :func:`from_family` map
 joint vectors. Built by :func:`armd.solvers.arm.arm_state` from the arm's
 :class:`~armd.robots.geometry.Geometry`.
@@ -25,6 +26,7 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .jit import jit, register_tuples
+from .packed import Packed, bool_at, float_at, floats1, floats2, int_at, ints1
 
 IntArray = NDArray[np.int64]
 
@@ -92,6 +94,42 @@ FIELDS: dict[str, tuple[tuple[str, Any], ...]] = {
 }
 CLASSES = {"Family": Family, "Arm": Arm}
 register_tuples(CLASSES, FIELDS)
+FAMILY_LEAVES = 10  # a Family's leaves in a packed bundle (solvers.packed): an Arm's first ten
+
+
+@jit
+def family_at(p: Packed, k: int) -> Family:
+    """The :class:`Family` whose leaves start at leaf ``k`` of the packed bundle ``p`` (0: a packed
+    Family, or an Arm's), on views of ``p``'s arrays: the leaves in field order."""
+    return Family(
+        floats1(p, k),
+        ints1(p, k + 1),
+        floats1(p, k + 2),
+        floats1(p, k + 3),
+        floats1(p, k + 4),
+        floats2(p, k + 5),
+        floats1(p, k + 6),
+        floats1(p, k + 7),
+        bool_at(p, k + 8),
+        bool_at(p, k + 9),
+    )
+
+
+@jit
+def arm_of(p: Packed) -> Arm:
+    """The :class:`Arm` packed in ``p``, on views of its arrays: the family's leaves first."""
+    k = FAMILY_LEAVES
+    return Arm(
+        family_at(p, 0),
+        floats1(p, k),
+        floats1(p, k + 1),
+        floats1(p, k + 2),
+        floats1(p, k + 3),
+        floats1(p, k + 4),
+        float_at(p, k + 5),
+        int_at(p, k + 6),
+        floats2(p, k + 7),
+    )
 
 
 @jit

@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .jit import jit, register_tuples
+from .packed import Packed, float_at, floats1, floats2, ints1
 
 G = 8  # grid cells a side
 
@@ -41,6 +42,12 @@ ATLAS_FIELDS = (
     ("size", ("f8", 0)),
 )
 register_tuples({"Atlas": Atlas}, {"Atlas": ATLAS_FIELDS})
+
+
+@jit
+def atlas_of(p: Packed) -> Atlas:
+    """The :class:`Atlas` packed in ``p`` (:mod:`solvers.packed`), on views of its arrays."""
+    return Atlas(floats2(p, 0), floats2(p, 1), ints1(p, 2), floats1(p, 3), float_at(p, 4))
 
 
 def make_atlas(q: FloatArray, p: FloatArray) -> Atlas:

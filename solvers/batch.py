@@ -105,11 +105,11 @@ def _solve_many(
     """:func:`solve_many` over the rows, :data:`CHUNK` at a time: between chunks the other
     threads run (a move, a stop, an adapter's state), instead of waiting behind 10,000 targets.
     The chunks are views: each call writes into the caller's arrays."""
-    assert arm.arrays is not None  # (a family arm: the compiled stage's)
+    assert arm.packed_arm is not None  # (a family arm: the compiled stage's)
     for a in range(0, len(pts), CHUNK):
         b = a + CHUNK
         solve_many(
-            arm.arrays,
+            arm.packed_arm,
             refs[a:b],
             pts[a:b],
             prefs[a:b],
@@ -275,9 +275,11 @@ def _clear(
     pitches ``others``) into ``q`` and ``ids``, :data:`CLEAR_CHUNK` rows a compiled call; which
     of ``rows`` found one (the others take the single-target path: its wrist rolls and
     numerical starts)."""
-    assert arm.arrays is not None
+    assert arm.packed_arm is not None
     for a in range(0, len(rows), CLEAR_CHUNK):
-        clear_branches(arm.arrays, world.shapes, refs, pts, prefs, others, tolerance, rows[a : a + CLEAR_CHUNK], q, ids)
+        clear_branches(
+            arm.packed_arm, world.packed_shapes, refs, pts, prefs, others, tolerance, rows[a : a + CLEAR_CHUNK], q, ids
+        )
     found: NDArray[np.bool_] = ids[rows] >= 0
     return found
 
@@ -316,13 +318,13 @@ def _numerical(
             check()
         b = a + NUMERICAL_CHUNK
         solve_chains(
-            arm.chain,
+            arm.packed_chain,
             pts[a:b],
             pitches[a:b],
             w2,
             refs[a:b],
             inside,
-            arm.atlas,
+            arm.packed_atlas,
             _NUMERICAL_STARTS,
             tolerance,
             PITCH_TOLERANCE,

@@ -33,6 +33,7 @@ COMPILED = {
         "limits",
         "lm",
         "narrowphase",
+        "packed",
         "pitch",
         "tree",
     ),

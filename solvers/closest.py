@@ -6,7 +6,7 @@ This module runs armd's Levenberg-Marquardt iteration (:mod:`solvers.lm`: each s
 the box and coupled limits as hard constraints; a step is taken only if it lowers the cost) on
 it from several starts, and keeps the best: an unreachable target is answered in tens of
 microseconds. Where the optimum's stationary points can all be
-enumerated (:func:`closest_box`, :func:`closest_level`: every catalogue arm), the iteration is
+enumerated (:func:`enumerated_closest`, :func:`closest_level`: every catalogue arm), the iteration is
 not needed at all: the enumeration is exact, where the iteration can stop in a local minimum.
 """
 
@@ -20,16 +20,17 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .analytic import NONE, solve_one
-from .arrays import Arm, Family, from_family, to_family, view
-from .atlas import Atlas, nearest
+from .arrays import Family, arm_of, family_at, from_family, to_family, view
+from .atlas import atlas_of, nearest
 from .geometric import TWO_PI, family_fk, two_link, wrap_angle, wrap_into
 from .jit import entry, jit
 from .limits import limits_ok
-from .lm import MARGIN, family_cost, refine_family
+from .lm import MARGIN, family_cost, lm_family
+from .packed import Packed
 
 IntArray = NDArray[np.int64]
 
-SLACK = 1e-9  # relative (and [m^2] absolute) slack of closest_box's bounds: a skip is never a rounding's doing
+SLACK = 1e-9  # relative (and [m^2] absolute) slack of enumerated_closest's bounds: a skip is never a rounding's doing
 FREE_PREFS = np.array([0.0, -math.pi / 2])  # the free-pitch preference (solvers.ik.FREE_PITCHES)
 ALPHA_STEP = math.pi / 32  # [rad] sampling of the target's bearing in the arm frame (closest_level)
 
@@ -375,7 +376,13 @@ def closest_level(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatAr
 
 
 @entry("f8(Family, f8[:], f8[:], f8[:], b1)")
-def closest_box(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
+def closest_box(packed_family: Packed, target: FloatArray, ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
+    """:func:`enumerated_closest`, for Python: the :class:`Family` packed (:mod:`solvers.packed`)."""
+    return enumerated_closest(family_at(packed_family, 0), target, ref, q_out, prune)
+
+
+@jit
+def enumerated_closest(f: Family, target: FloatArray, ref: FloatArray, q_out: FloatArray, prune: bool) -> float:
     """The closest configuration within the box limits, any tool pitch, by enumerating every
     stationary point: (error [m]), or -1 where this does not apply. ``prune`` False visits every
     candidate (the tests hold the pruned search to it).
@@ -580,21 +587,23 @@ def _aim_yaw(f: Family, target: FloatArray, theta: FloatArray) -> None:
 
 @entry("Tuple((f8, f8, i8))(Arm, f8[:], f8, f8, f8[:], Atlas, i8, f8[:])")
 def closest_family(
-    arm: Arm,
+    packed_arm: Packed,
     target: FloatArray,
     pitch: float,
     w2: float,
     ref: FloatArray,
-    atlas: Atlas,
+    packed_atlas: Packed,
     n_atlas: int,
     q_out: FloatArray,
 ) -> tuple[float, float, int]:
     """The closest configuration within limits to ``target`` (``base``), with tool pitch
     ``pitch`` weighed by ``w2`` (0: any pitch), into ``q_out`` (the URDF's angles): the
-    enumerated optimum where it applies (:func:`closest_box`, free pitch only); else the best of
-    :func:`refine_family` from ``ref`` (if within limits) and the ``n_atlas`` atlas configurations
-    (the URDF's angles; tool points in ``base``) whose tool points are nearest the
-    target, their joints outside the family kept at ``ref``'s: (error, pitch error, iterations)."""
+    enumerated optimum where it applies (:func:`enumerated_closest`, free pitch only); else the
+    best of :func:`~solvers.lm.lm_family` from ``ref`` (if within limits) and the ``n_atlas``
+    atlas configurations (the URDF's angles; tool points in ``base``) whose tool points are
+    nearest the target, their joints outside the family kept at ``ref``'s: (error, pitch error,
+    iterations). The arm and the atlas packed (:mod:`solvers.packed`)."""
+    arm, atlas = arm_of(packed_arm), atlas_of(packed_atlas)
     f, zero, offset = view(arm, ref)
     n = ref.shape[0]
     ref_f = np.empty(n)
@@ -610,13 +619,13 @@ def closest_family(
             P0 = f.P.copy()
             P0[1] = 0.0
             flat = Family(P0, f.J, f.lower, f.upper, f.weights, f.C, f.clo, f.chi, f.exact_pitch_search, f.level)
-            if closest_box(flat, goal, ref_f, theta, True) >= 0.0:
+            if enumerated_closest(flat, goal, ref_f, theta, True) >= 0.0:
                 _aim_yaw(f, goal, theta)
-                err, _, it = refine_family(f, goal, 0.0, 0.0, theta, 5, 0.4, 1e-12)
+                err, _, it = lm_family(f, goal, 0.0, 0.0, theta, 5, 0.4, 1e-12)
                 from_family(arm, zero, theta, q_out)
                 return err, 0.0, it
         else:
-            err = closest_box(f, goal, ref_f, theta, True)
+            err = enumerated_closest(f, goal, ref_f, theta, True)
             if err >= 0.0:
                 from_family(arm, zero, theta, q_out)
                 return err, 0.0, 0
@@ -655,12 +664,12 @@ def closest_family(
         if not costs[s] <= 4.0 * floor + 1e-6:  # far worse than the best start: skip it
             continue
         q[:] = starts[s]
-        err, perr, it = refine_family(f, goal, goal_pitch, w2, q, 4, 0.4, 1e-12)
+        err, perr, it = lm_family(f, goal, goal_pitch, w2, q, 4, 0.4, 1e-12)
         iters += it
         score = err * err + w2 * perr * perr
         if score < best - 1e-18:
             best = score
             theta[:] = q
-    err, perr, it = refine_family(f, goal, goal_pitch, w2, theta, 200, 0.4, 1e-12)
+    err, perr, it = lm_family(f, goal, goal_pitch, w2, theta, 200, 0.4, 1e-12)
     from_family(arm, zero, theta, q_out)
     return err, perr, iters + it

@@ -23,7 +23,8 @@ over (first the spheres about them), and GJK stops as soon as a separating plane
 
 A contact is a distance at or below :data:`~armd.solvers.narrowphase.TOUCH` (1e-12 m). One
 engine, :func:`run`, answers all of them; compiled callers (the IK's branch loop, the planner's
-sample loop) call it with the bundle's arrays.
+sample loop) call it with the bundle's arrays. The entry points take the bundle packed
+(:mod:`armd.solvers.packed`): :func:`shapes_of` unpacks it.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ from armd.robots.types import FloatArray
 
 from .jit import entry, jit, register_tuples
 from .narrowphase import HALFSPACE, TOUCH, above_halfspace, pair_distance, segments
-from .tree import Tree, tree_frames
+from .packed import Packed, floats2, floats3, ints1, ints2
+from .tree import TREE_LEAVES, Tree, tree_at, tree_frames
 
 IntArray = NDArray[np.int64]
 
@@ -67,6 +69,23 @@ SHAPES_FIELDS = (
     ("pairs", ("i8", 2)),
 )
 register_tuples({"Shapes": Shapes}, {"Shapes": SHAPES_FIELDS})
+
+
+@jit
+def shapes_of(p: Packed) -> Shapes:
+    """The :class:`Shapes` packed in ``p`` (:mod:`solvers.packed`), on views of its arrays: the
+    tree's leaves first."""
+    k = TREE_LEAVES
+    return Shapes(
+        tree_at(p, 0),
+        ints1(p, k),
+        floats2(p, k + 1),
+        ints1(p, k + 2),
+        floats3(p, k + 3),
+        ints1(p, k + 4),
+        floats2(p, k + 5),
+        ints2(p, k + 6),
+    )
 
 
 # What a check asks (one engine, :func:`run`, answers all: see the module's doc)
@@ -203,43 +222,45 @@ def row(q: FloatArray) -> FloatArray:
 
 
 @entry("i8(Shapes, f8[:])")
-def first_collision(shapes: Shapes, q: FloatArray) -> int:
-    """The first pair (its row of ``shapes.pairs``) in contact at ``q`` [rad, m], or -1: clear."""
+def first_collision(packed_shapes: Packed, q: FloatArray) -> int:
+    """The first pair (its row of the shapes' ``pairs``) in contact at ``q`` [rad, m], or -1:
+    clear. ``packed_shapes``: the :class:`Shapes` packed (:func:`solvers.packed.pack`), as
+    every entry point here takes them."""
     index = np.empty(1, dtype=np.int64)
-    check(shapes, row(q), FIRST, index, np.empty(0))
+    check(shapes_of(packed_shapes), row(q), FIRST, index, np.empty(0))
     return index[0]
 
 
 @entry("i8(Shapes, f8[:, :], i8[:])")
-def first_collisions(shapes: Shapes, Q: FloatArray, out: IntArray) -> int:
+def first_collisions(packed_shapes: Packed, Q: FloatArray, out: IntArray) -> int:
     """:func:`first_collision` of each row of ``Q`` (m, n) into ``out`` (m,); returns how many
     rows collide."""
-    return check(shapes, Q, FIRST, out, np.empty(0))
+    return check(shapes_of(packed_shapes), Q, FIRST, out, np.empty(0))
 
 
 @entry("Tuple((f8, i8))(Shapes, f8[:])")
-def min_distance(shapes: Shapes, q: FloatArray) -> tuple[float, int]:
+def min_distance(packed_shapes: Packed, q: FloatArray) -> tuple[float, int]:
     """The smallest distance [m] between the shapes of a checked pair at ``q`` and that pair (the
     first of equals); at the first pair in contact: its value (<= TOUCH) and that pair. (inf,
     -1): no pair."""
     index, distance = np.empty(1, dtype=np.int64), np.empty(1)
-    check(shapes, row(q), NEAREST, index, distance)
+    check(shapes_of(packed_shapes), row(q), NEAREST, index, distance)
     return distance[0], index[0]
 
 
 @entry("i8(Shapes, f8[:, :], f8[:], i8[:])")
-def min_distances(shapes: Shapes, Q: FloatArray, distance: FloatArray, index: IntArray) -> int:
+def min_distances(packed_shapes: Packed, Q: FloatArray, distance: FloatArray, index: IntArray) -> int:
     """:func:`min_distance` of each row of ``Q`` (m, n) into ``distance`` and ``index`` (m,);
     returns how many rows have a pair in contact."""
-    return check(shapes, Q, NEAREST, index, distance)
+    return check(shapes_of(packed_shapes), Q, NEAREST, index, distance)
 
 
 @entry("i8(Shapes, f8[:], f8[:])")
-def pair_distances(shapes: Shapes, q: FloatArray, out: FloatArray) -> int:
+def pair_distances(packed_shapes: Packed, q: FloatArray, out: FloatArray) -> int:
     """Every checked pair's distance [m] at ``q`` into ``out`` (P,) (<= TOUCH: in contact);
     returns the first pair in contact, or -1."""
     index = np.full(1, -1, dtype=np.int64)
-    check(shapes, row(q), EVERY, index, out)
+    check(shapes_of(packed_shapes), row(q), EVERY, index, out)
     return index[0]
 
 

@@ -30,8 +30,9 @@ from numpy.typing import NDArray
 from armd.robots.angles import wrap
 from armd.robots.types import FloatArray
 
-from .arrays import Arm, Family, family_pitch, to_family, view
+from .arrays import Family, arm_of, family_pitch, to_family, view
 from .jit import entry, jit
+from .packed import Packed
 
 IntArray = NDArray[np.int64]
 
@@ -168,9 +169,11 @@ def family_fk(f: Family, theta: FloatArray, out: FloatArray) -> None:
 
 
 @entry("f8(Arm, f8[:], f8[:])")
-def arm_pose(arm: Arm, q: FloatArray, out: FloatArray) -> float:
+def arm_pose(packed_arm: Packed, q: FloatArray, out: FloatArray) -> float:
     """Tool point [m] in ``base`` into ``out`` (3,) and tool pitch [rad] (not wrapped) at ``q``
-    (the URDF's angles), by the family's formula and the arm's map."""
+    (the URDF's angles), by the family's formula and the arm's map (``packed_arm``: the
+    :class:`~armd.solvers.arrays.Arm` packed)."""
+    arm = arm_of(packed_arm)
     f, zero, offset = view(arm, q)
     theta = np.empty(q.shape[0])
     to_family(arm, zero, q, theta)

@@ -181,7 +181,7 @@ def _refined(
     errs, kept, its = np.empty(m), np.empty(m, dtype=bool), np.zeros(1, dtype=np.int64)
     w2 = 0.0 if phi is None else _PITCH_WEIGHT**2
     aim = 0.0 if phi is None else phi
-    refine_branches(arm.chain, qs, m, point, aim, w2, tolerance, PITCH_TOLERANCE, errs, kept, its)
+    refine_branches(arm.packed_chain, qs, m, point, aim, w2, tolerance, PITCH_TOLERANCE, errs, kept, its)
     found = [Branch(rows[r][0], qs[r], float(errs[r])) for r in range(m) if kept[r]]
     return found, int(its[0])
 
@@ -197,17 +197,17 @@ def _solve_family(
 ) -> tuple[IKResult, bool]:
     """The closed form's answer, and whether it and every branch listed were found clear of
     ``world`` in the same compiled call (a world of primitive shapes; else not checked here)."""
-    assert arm.arrays is not None
+    assert arm.packed_arm is not None
     b = arm.buffers
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     together = world is not None and not world.coal_pairs
     if together:
         assert world is not None
         code, m, phi, pitch_sum = solve_point_clear(
-            arm.arrays, world.shapes, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached, b.hits
+            arm.packed_arm, world.packed_shapes, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached, b.hits
         )
     else:
-        code, m, phi, pitch_sum = solve_point(arm.arrays, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+        code, m, phi, pitch_sum = solve_point(arm.packed_arm, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
     if code == NONE and free_roll and arm.rolls_tool and _dist(point, _ORIGIN) <= arm.reach:
         # out of reach with the seed's roll, and the roll moves the tool point: the closed form
         # at other rolls, the least turn first
@@ -274,8 +274,8 @@ def _turn_roll(
     probe does. The tool rolls 45, 90, 135, 180 degrees each way from the seed's are tried in
     that order (each the joint angle within limits nearest the seed's), and the turn that
     reaches is halved toward the seed's joint angle while it still does."""
-    arrays, g = arm.arrays, arm.robot.geometry
-    assert arrays is not None and g is not None and g.roll is not None
+    packed_arm, g = arm.packed_arm, arm.robot.geometry
+    assert packed_arm is not None and g is not None and g.roll is not None
     b = arm.buffers
     i = g.roll
     lo, hi = float(arm.robot.limits.lower[i]), float(arm.robot.limits.upper[i])
@@ -284,7 +284,7 @@ def _turn_roll(
 
     def at(angle: float) -> tuple[int, int, float, float]:
         probe[i] = angle
-        return solve_point(arrays, probe, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+        return solve_point(packed_arm, probe, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
 
     for k in _ROLL_PROBES:
         turns = [t for t in (k * math.pi / 4 + 2 * math.pi * m for m in (-1, 0, 1)) if lo <= start + t <= hi]
@@ -316,14 +316,14 @@ def _closest(
     """The configuration within limits whose tool point is nearest ``point``: on the family's
     formula (then, where it is an idealisation of the URDF, iterated on the exact chain from
     there), else the numerical IK's best."""
-    if arm.arrays is not None:
+    if arm.arrays is not None and arm.packed_arm is not None:
         q = np.empty(arm.robot.nq)
         has_wrist = bool(arm.arrays.family.J[3] >= 0)
         w2 = _PITCH_WEIGHT**2 if (pitch is not None and has_wrist) else 0.0
         aim = 0.0 if pitch is None else pitch
-        err, perr, its = closest_family(arm.arrays, point, aim, w2, ref, arm.atlas, _ATLAS_STARTS, q)
+        err, perr, its = closest_family(arm.packed_arm, point, aim, w2, ref, arm.packed_atlas, _ATLAS_STARTS, q)
         if not arm.exact:
-            err, perr, its2 = refine_chain(arm.chain, point, aim, w2, q, 30, 0.4, 1e-12)
+            err, perr, its2 = refine_chain(arm.packed_chain, point, aim, w2, q, 30, 0.4, 1e-12)
             its += its2
             if tolerance < err <= _NEAR:  # the idealised closed form may say no where the URDF reaches
                 q, err, perr, its2 = _numerically_better(arm, point, aim, w2, q, err, perr, tolerance)
@@ -359,13 +359,13 @@ def _chain_solve(
     error, pitch error, iterations, tool pitch), the answer into ``q_out`` and its tool point
     into ``reached``."""
     err, perr, its, _, reached_pitch = solve_chain(
-        arm.chain,
+        arm.packed_chain,
         point,
         pitch,
         w2,
         ref,
         inside,
-        arm.atlas,
+        arm.packed_atlas,
         starts,
         tolerance,
         PITCH_TOLERANCE,
@@ -495,7 +495,7 @@ def _at_pitches(
 ) -> list[Branch]:
     """The closed form's branches on ``point`` at each tool pitch of ``ps`` in turn (those not in
     ``at`` yet: for an exact arm in one compiled call, :func:`solvers.analytic.solve_pitches`)."""
-    assert arm.arrays is not None
+    assert arm.packed_arm is not None
     new = [p for p in dict.fromkeys(ps) if p not in at]
     if arm.exact and new:
         k, n = len(new), arm.robot.nq
@@ -505,7 +505,7 @@ def _at_pitches(
             np.empty(4 * k),
             np.empty(k, dtype=np.int64),
         )
-        solve_pitches(arm.arrays, ref, point, np.array(new), qs, ids, errs, counts)
+        solve_pitches(arm.packed_arm, ref, point, np.array(new), qs, ids, errs, counts)
         row = 0
         for p, m in zip(new, counts.tolist(), strict=True):
             at[p] = [
@@ -529,9 +529,9 @@ def _branches_at(
 
 
 def _solved_at(arm: ArmState, point: FloatArray, p: float, ref: FloatArray, tolerance: float) -> list[Branch]:
-    assert arm.arrays is not None
+    assert arm.packed_arm is not None
     b = arm.buffers
-    code, m, _, _ = solve_point(arm.arrays, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
+    code, m, _, _ = solve_point(arm.packed_arm, ref, point, np.array([p]), b.qs, b.ids, b.errs, b.work, b.reached)
     if code != EXACT:
         return []
     names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]

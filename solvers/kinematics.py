@@ -4,7 +4,8 @@
 (each joint's placement in the previous one's frame, its axis, revolute or prismatic, the
 coordinate of ``q`` it reads, a mimic joint's multiplier and offset) with the arm's limits in
 the URDF's angles: the exact model, for the numerical IK and for refining an idealised closed
-form, about 0.2 us a pose for six joints. Built by :mod:`solvers.arm` from the Robot.
+form, about 0.2 us a pose for six joints. Built by :mod:`solvers.arm` from the Robot; entry
+points take it packed (:mod:`solvers.packed`) and :func:`chain_of` unpacks it.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .jit import entry, jit, register_tuples
+from .packed import Packed, float_at, floats1, floats2, floats3, int_at, ints1
 
 IntArray = NDArray[np.int64]
 
@@ -62,6 +64,30 @@ CHAIN_FIELDS = (
     ("yaw_zero", ("f8", 0)),
 )
 register_tuples({"Chain": Chain}, {"Chain": CHAIN_FIELDS})
+
+
+@jit
+def chain_of(p: Packed) -> Chain:
+    """The :class:`Chain` packed in ``p`` (:mod:`solvers.packed`), on views of its arrays: the
+    leaves in field order."""
+    return Chain(
+        floats3(p, 0),
+        floats2(p, 1),
+        ints1(p, 2),
+        ints1(p, 3),
+        floats1(p, 4),
+        floats1(p, 5),
+        floats2(p, 6),
+        floats1(p, 7),
+        floats1(p, 8),
+        floats1(p, 9),
+        floats2(p, 10),
+        floats1(p, 11),
+        floats1(p, 12),
+        int_at(p, 13),
+        float_at(p, 14),
+        float_at(p, 15),
+    )
 
 
 @jit
@@ -212,6 +238,7 @@ def chain_jacobian(
 
 
 @entry("f8(Chain, f8[:], f8[:])")
-def pose(ch: Chain, q: FloatArray, point: FloatArray) -> float:
-    """:func:`chain_pose`, for Python: the tool point [m] into ``point`` and the tool pitch [rad]."""
-    return chain_pose(ch, q, point)
+def pose(packed_chain: Packed, q: FloatArray, point: FloatArray) -> float:
+    """:func:`chain_pose`, for Python (the chain packed): the tool point [m] into ``point`` and
+    the tool pitch [rad]."""
+    return chain_pose(chain_of(packed_chain), q, point)

@@ -32,12 +32,13 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .activeset import solve_qp
-from .arrays import Family, family_pitch
-from .atlas import Atlas, nearest
+from .arrays import Family, family_at, family_pitch
+from .atlas import Atlas, atlas_of, nearest
 from .geometric import family_fk, wrap_angle
 from .jit import entry, jit
-from .kinematics import Chain, chain_jacobian, chain_pose_with, chain_work
+from .kinematics import Chain, chain_jacobian, chain_of, chain_pose_with, chain_work
 from .limits import limits_ok
+from .packed import Packed
 
 MARGIN = 1e-12  # [rad] kept inside coupled limits, so rounding never leaves them
 TRIES = 12  # damping increases per step before the iteration gives up (a constrained optimum)
@@ -293,8 +294,8 @@ def no_family() -> Family:
     return Family(np.zeros(8), np.full(4, -1, dtype=np.int64), e1, e1, e1, np.zeros((0, 0)), e1, e1, False, False)
 
 
-@entry("Tuple((f8, f8, i8))(Family, f8[:], f8, f8, f8[:], i8, f8, f8)")
-def refine_family(
+@jit
+def lm_family(
     f: Family, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
 ) -> tuple[float, float, int]:
     """:func:`levenberg_marquardt` on the family's formula (the family's angles and frame)."""
@@ -303,11 +304,35 @@ def refine_family(
     return levenberg_marquardt(f, ch, False, target, pitch, w2, q, max_iter, step, tol, DAMPING, 0.0, work)
 
 
+@entry("Tuple((f8, f8, i8))(Family, f8[:], f8, f8, f8[:], i8, f8, f8)")
+def refine_family(
+    packed_family: Packed,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    q: FloatArray,
+    max_iter: int,
+    step: float,
+    tol: float,
+) -> tuple[float, float, int]:
+    """:func:`lm_family`, for Python: the :class:`Family` packed (:mod:`solvers.packed`), as
+    every entry point here takes its bundles."""
+    return lm_family(family_at(packed_family, 0), target, pitch, w2, q, max_iter, step, tol)
+
+
 @entry("Tuple((f8, f8, i8))(Chain, f8[:], f8, f8, f8[:], i8, f8, f8)")
 def refine_chain(
-    ch: Chain, target: FloatArray, pitch: float, w2: float, q: FloatArray, max_iter: int, step: float, tol: float
+    packed_chain: Packed,
+    target: FloatArray,
+    pitch: float,
+    w2: float,
+    q: FloatArray,
+    max_iter: int,
+    step: float,
+    tol: float,
 ) -> tuple[float, float, int]:
     """:func:`levenberg_marquardt` on the exact chain (the URDF's angles, ``base``)."""
+    ch = chain_of(packed_chain)
     work = lm_work(ch, q.shape[0], ch.C.shape[0])
     return levenberg_marquardt(no_family(), ch, True, target, pitch, w2, q, max_iter, step, tol, DAMPING, 0.0, work)
 
@@ -341,13 +366,13 @@ def feasible(ch: Chain, q: FloatArray, inside: FloatArray, out: FloatArray) -> b
 
 @entry("Tuple((f8, f8, i8, i8, f8))(Chain, f8[:], f8, f8, f8[:], f8[:], Atlas, i8, f8, f8, f8[:], f8[:])")
 def solve_chain(
-    ch: Chain,
+    packed_chain: Packed,
     target: FloatArray,
     pitch: float,
     w2: float,
     ref: FloatArray,
     inside: FloatArray,
-    atlas: Atlas,
+    packed_atlas: Packed,
     n_atlas: int,
     tol: float,
     pitch_tol: float,
@@ -360,7 +385,9 @@ def solve_chain(
     :data:`FIRST_STEPS` steps each, until one reaches ``tol`` [m] (and ``pitch_tol`` [rad] with
     ``w2 > 0``), then on to :data:`FINE` of ``tol``; else the best of them iterated to
     convergence. Into ``q_out`` and its tool point into ``reached``: (position error, pitch
-    error, iterations, starts used, tool pitch [rad])."""
+    error, iterations, starts used, tool pitch [rad]). The chain and the atlas packed
+    (:mod:`solvers.packed`)."""
+    ch, atlas = chain_of(packed_chain), atlas_of(packed_atlas)
     n = ref.shape[0]
     order = np.empty(n_atlas, dtype=np.int64)
     work = lm_work(ch, n, ch.C.shape[0])
@@ -431,13 +458,13 @@ def _solve_chain(
 
 @entry("void(Chain, f8[:, :], f8[:], f8, f8[:, :], f8[:], Atlas, i8, f8, f8, f8[:, :], f8[:, :], f8[:], f8[:], f8[:])")
 def solve_chains(
-    ch: Chain,
+    packed_chain: Packed,
     targets: FloatArray,
     pitches: FloatArray,
     w2: float,
     refs: FloatArray,
     inside: FloatArray,
-    atlas: Atlas,
+    packed_atlas: Packed,
     n_atlas: int,
     tol: float,
     pitch_tol: float,
@@ -452,6 +479,7 @@ def solve_chains(
     closed-form family. Each row's answer into ``q_out``, its tool point, position error [m],
     pitch error [rad] and tool pitch [rad] (not wrapped) into the others; the same answers as
     :func:`solve_chain` row by row, its scratch made once."""
+    ch, atlas = chain_of(packed_chain), atlas_of(packed_atlas)
     n = refs.shape[1]
     q = np.empty(n)
     order = np.empty(n_atlas, dtype=np.int64)
@@ -478,7 +506,7 @@ def solve_chains(
 
 @entry("void(Chain, f8[:, :], i8, f8[:], f8, f8, f8, f8, f8[:], b1[:], i8[:])")
 def refine_branches(
-    ch: Chain,
+    packed_chain: Packed,
     qs: FloatArray,
     m: int,
     target: FloatArray,
@@ -494,6 +522,7 @@ def refine_branches(
     checked on the exact chain and, where they miss by more than ``tol``, iterated there in
     place: each row's exact error into ``errs``, whether it now reaches the target (and the
     pitch ``pitch`` with ``w2 > 0``) into ``kept``, the iterations into ``iterations[0]``."""
+    ch = chain_of(packed_chain)
     f = no_family()
     p = np.empty(3)
     work = lm_work(ch, qs.shape[1], ch.C.shape[0])

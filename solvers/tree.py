@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from armd.robots.types import FloatArray
 
 from .jit import jit, register_tuples
+from .packed import Packed, floats1, floats2, floats3, ints1
 
 IntArray = NDArray[np.int64]
 
@@ -51,6 +52,22 @@ TREE_FIELDS = (
     ("offset", ("f8", 1)),
 )
 register_tuples({"Tree": Tree}, {"Tree": TREE_FIELDS})
+TREE_LEAVES = len(TREE_FIELDS)  # its leaves in a packed bundle (solvers.packed)
+
+
+@jit
+def tree_at(p: Packed, k: int) -> Tree:
+    """The :class:`Tree` whose leaves start at leaf ``k`` of the packed bundle ``p`` (0: a packed
+    Tree, or a Shapes'), on views of ``p``'s arrays: the leaves in field order."""
+    return Tree(
+        ints1(p, k),
+        floats3(p, k + 1),
+        floats2(p, k + 2),
+        ints1(p, k + 3),
+        ints1(p, k + 4),
+        floats1(p, k + 5),
+        floats1(p, k + 6),
+    )
 
 
 @jit

@@ -13,7 +13,9 @@ joint's link), :attr:`CompiledWorld.on_coal` which pairs.
 :class:`CompiledWorld` answers as the collision model does (:meth:`~CompiledWorld.first_contact`,
 :meth:`~CompiledWorld.contacts`, :meth:`~CompiledWorld.clearance`), the same pairs in the same
 order: the compiled pairs by one compiled call, the pairs on coal through Pinocchio after it,
-merged in the model's order. :func:`compiled` keeps one per collision model: what the solver,
+merged in the model's order. It keeps the shapes packed (:attr:`~CompiledWorld.packed_shapes`:
+what the compiled calls take, :mod:`armd.solvers.packed`) and as a :class:`Shapes` of views of the
+same arrays (:attr:`~CompiledWorld.shapes`). :func:`compiled` keeps one per collision model: what the solver,
 the planner and the tracker check with.
 """
 
@@ -34,6 +36,7 @@ from armd.robots.types import FloatArray
 
 from .collide import Shapes, first_collision, first_collisions, min_distance, pair_distances
 from .narrowphase import BOX, CAPSULE, CYLINDER, HALFSPACE, SIZE, SPHERE, TOUCH
+from .packed import Packed, pack, unpacked
 from .tree import FIXED, PRISMATIC, REVOLUTE, Tree
 
 log = logging.getLogger(__name__)
@@ -197,16 +200,21 @@ class CompiledWorld:
                 pairs.append((first, second))
             else:
                 coal_pairs.append(index)
-        self.shapes = Shapes(
-            tree,
-            np.array(kinds, dtype=np.int64),
-            _c(np.array(sizes).reshape(len(kinds), SIZE)),
-            np.array(joints, dtype=np.int64),
-            _c(np.array(locals_).reshape(len(kinds), 4, 4)),
-            np.array(axes, dtype=np.int64),
-            _c(np.array(bounds).reshape(len(kinds), 2)),
-            np.array(pairs, dtype=np.int64).reshape(len(pairs), 2),
+        # what the entry points take (solvers.packed), and the same memory as a Shapes for Python
+        self.packed_shapes: Packed = pack(
+            Shapes(
+                tree,
+                np.array(kinds, dtype=np.int64),
+                _c(np.array(sizes).reshape(len(kinds), SIZE)),
+                np.array(joints, dtype=np.int64),
+                _c(np.array(locals_).reshape(len(kinds), 4, 4)),
+                np.array(axes, dtype=np.int64),
+                _c(np.array(bounds).reshape(len(kinds), 2)),
+                np.array(pairs, dtype=np.int64).reshape(len(pairs), 2),
+            )
         )
+        self.shapes: Shapes = unpacked(self.packed_shapes)
+        self.n_compiled = len(pairs)  # the pairs the compiled stage checks
         self.unsupported: tuple[Unsupported, ...] = tuple(unsupported)
         self.compiled_pairs = np.array(compiled, dtype=np.int64)  # each compiled pair's index in world.pairs
         self.coal_pairs: tuple[int, ...] = tuple(coal_pairs)  # the indices in world.pairs left to coal
@@ -240,7 +248,7 @@ class CompiledWorld:
         """The first pair in collision at ``q`` [rad], or None (as
         :meth:`CollisionModel.first_contact`)."""
         q = np.ascontiguousarray(q, dtype=np.float64)
-        p = int(first_collision(self.shapes, q)) if len(self.shapes.pairs) else -1
+        p = int(first_collision(self.packed_shapes, q)) if self.n_compiled else -1
         first = int(self.compiled_pairs[p]) if p >= 0 else len(self.world.pairs)
         if self.coal_pairs and self.coal_pairs[0] < first:
             gdata = self._coal(q)
@@ -257,8 +265,8 @@ class CompiledWorld:
         (the pairs on coal after it, for the rows it found clear)."""
         Q = np.ascontiguousarray(Q, dtype=np.float64)
         out = np.full(len(Q), -1, dtype=np.int64)
-        if len(self.shapes.pairs) and len(Q):
-            first_collisions(self.shapes, Q, out)
+        if self.n_compiled and len(Q):
+            first_collisions(self.packed_shapes, Q, out)
         hit = out >= 0
         if self.coal_pairs:
             for i in np.flatnonzero(~hit).tolist():
@@ -278,9 +286,9 @@ class CompiledWorld:
     def distances(self, q: FloatArray) -> FloatArray:
         """Each compiled pair's distance [m] at ``q`` (<= TOUCH: in contact), in the order of
         :attr:`compiled_pairs`."""
-        out = np.empty(len(self.shapes.pairs))
-        if len(out):
-            pair_distances(self.shapes, np.ascontiguousarray(q, dtype=np.float64), out)
+        out = np.empty(self.n_compiled)
+        if self.n_compiled:
+            pair_distances(self.packed_shapes, np.ascontiguousarray(q, dtype=np.float64), out)
         return out
 
     def clearance(self, q: FloatArray) -> tuple[float, Contact | None]:
@@ -289,7 +297,7 @@ class CompiledWorld:
         deepest as coal's; as :meth:`CollisionModel.clearance` otherwise); (inf, None) when no
         pair is checked."""
         q = np.ascontiguousarray(q, dtype=np.float64)
-        d, p = min_distance(self.shapes, q) if len(self.shapes.pairs) else (math.inf, -1)
+        d, p = min_distance(self.packed_shapes, q) if self.n_compiled else (math.inf, -1)
         best, which = float(d), (int(self.compiled_pairs[p]) if p >= 0 else -1)
         if self.coal_pairs and best > TOUCH:
             gdata = self._coal(q)

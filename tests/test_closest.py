@@ -19,7 +19,9 @@ from armd import robots
 from armd.solvers import solve_ik
 from armd.solvers.arm import arm_state as _arm
 from armd.solvers.arrays import Family
-from armd.solvers.closest import closest_box, closest_family, refine_family
+from armd.solvers.closest import closest_box, closest_family
+from armd.solvers.lm import refine_family
+from armd.solvers.packed import Packed, pack
 
 pytestmark = pytest.mark.slow  # (seconds: processes, routers, emulated boards; `pytest -m "not slow"` skips it)
 
@@ -72,8 +74,22 @@ def _family(
     clo: np.ndarray,
     chi: np.ndarray,
     exact_pitch_search: bool = False,
+) -> Packed:
+    """desk4's family with these numbers (the compiled code's tuple, packed; the family's angles are
+    the URDF's)."""
+    return pack(_family_tuple(P, J, lower, upper, C, clo, chi, exact_pitch_search))
+
+
+def _family_tuple(
+    P: np.ndarray,
+    J: np.ndarray,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    C: np.ndarray,
+    clo: np.ndarray,
+    chi: np.ndarray,
+    exact_pitch_search: bool = False,
 ) -> Family:
-    """desk4's family with these numbers (the compiled code's tuple; the family's angles are the URDF's)."""
     c = np.ascontiguousarray
     w = _arm(ARM).weights
     return Family(
@@ -271,15 +287,15 @@ def test_limits_it_does_not_cover_fall_back_to_the_iteration() -> None:
         assert err == -1.0
         q = np.empty(3)
         assert a.arrays is not None
-        arrays = a.arrays._replace(family=_family(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi))
-        _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.atlas, 3, q)
+        arrays = pack(a.arrays._replace(family=_family_tuple(fp.P, fp.J, fp.lower, fp.upper, C, clo, chi)))
+        _, _, its = closest_family(arrays, t, 0.0, 0.0, ARM.neutral, a.packed_atlas, 3, q)
         assert its > 0
     wrist = _arm(plain("insomniac")).family
     assert wrist is not None
     P = wrist.P.copy()
     P[1] = 0.01
     q = np.empty(len(wrist.lower))
-    assert closest_box(wrist._replace(P=P), t, plain("insomniac").neutral, q, True) == -1.0
+    assert closest_box(pack(wrist._replace(P=P)), t, plain("insomniac").neutral, q, True) == -1.0
 
 
 @pytest.mark.parametrize("name", ["insomniac", "sg5ut", "gupta3"])
@@ -292,7 +308,7 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
     arm = plain(name)
     a = _arm(arm)
     fp = a.family
-    assert fp is not None
+    assert fp is not None and a.packed_family is not None
     rng = np.random.default_rng(47)
     reach = _reach(arm)
     done = stopped_early = 0
@@ -302,8 +318,8 @@ def test_pruned_enumeration_finds_what_the_full_one_finds(name: str) -> None:
             continue
         ref = arm.neutral if done % 2 else rng.uniform(fp.lower, fp.upper)
         q_full, q_pruned = np.empty(arm.nq), np.empty(arm.nq)
-        full = closest_box(fp, t, ref, q_full, False)
-        pruned = closest_box(fp, t, ref, q_pruned, True)
+        full = closest_box(a.packed_family, t, ref, q_full, False)
+        pruned = closest_box(a.packed_family, t, ref, q_pruned, True)
         assert (full < 0) == (pruned < 0), t.tolist()
         if full >= 0:
             assert abs(pruned - full) <= 1e-12 * max(full, 1.0), (t.tolist(), full, pruned)

@@ -361,11 +361,11 @@ def test_random_configurations_answer_as_coal(name: str, among: bool) -> None:
     assert wrong <= CONFIGS // 100
     assert 0.02 * CONFIGS <= hits <= 0.98 * CONFIGS  # both answers were compared, many times
     out = np.empty(CONFIGS, dtype=np.int64)
-    assert first_collisions(cw.shapes, qs, out) == hits
-    assert out.tolist() == [first_collision(cw.shapes, q) for q in qs]  # (the batch is the single check)
+    assert first_collisions(cw.packed_shapes, qs, out) == hits
+    assert out.tolist() == [first_collision(cw.packed_shapes, q) for q in qs]  # (the batch is the single check)
     near, pair = np.empty(CONFIGS), np.empty(CONFIGS, dtype=np.int64)
-    assert min_distances(cw.shapes, qs, near, pair) == hits
-    assert list(zip(near.tolist(), pair.tolist(), strict=True)) == [min_distance(cw.shapes, q) for q in qs]
+    assert min_distances(cw.packed_shapes, qs, near, pair) == hits
+    assert list(zip(near.tolist(), pair.tolist(), strict=True)) == [min_distance(cw.packed_shapes, q) for q in qs]
 
 
 @pytest.mark.slow  # (5-15 s an arm: coal and the independent bounds near contact)
@@ -393,7 +393,7 @@ def test_near_contact_answers_as_coal(name: str) -> None:
                 a = mid
             else:
                 b = mid
-        nearest = min(nearest, float(min_distance(cw.shapes, a)[0]))
+        nearest = min(nearest, float(min_distance(cw.packed_shapes, a)[0]))
     assert nearest < 1e-9  # (the bisections did reach contact)
 
 

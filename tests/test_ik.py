@@ -159,11 +159,12 @@ def test_enumerated_closest_point_is_never_worse_than_the_iteration(name: str) -
     """The enumerated closest point answers every catalogue arm (desk4 too, with its offset pivot
     and coupled limit: tests/test_closest.py), and a many-start iteration finds nothing nearer."""
     from armd.solvers.arm import arm_state
-    from armd.solvers.closest import closest_box, refine_family
+    from armd.solvers.closest import closest_box
+    from armd.solvers.lm import refine_family
 
     arm = plain(name)
     a = arm_state(arm)
-    fp = a.family
+    fp = a.packed_family
     assert fp is not None
     rng = np.random.default_rng(23)
     used = 0

@@ -16,6 +16,7 @@ import pytest
 from armd import planning, robots, solvers
 from armd.solvers import jit
 from armd.solvers.arm import arm_state
+from armd.solvers.packed import Packed, pack
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -68,23 +69,37 @@ def test_the_native_build_is_there_and_used() -> None:
 def test_a_call_with_the_wrong_arrays_is_refused_under_the_tests() -> None:
     """The native build reads what it is given as what its signature says; the tests' check
     refuses anything else (here an int array for a float one, a 2-D one for a 1-D one, an arm
-    whose arrays are not contiguous or of another type)."""
+    not packed, packed as another bundle, or in arrays not contiguous or of another type), and
+    packing refuses a bundle whose arrays are of another type."""
     assert jit.CHECK
     pose = solvers.arm.arm_pose  # (a module Numba never switches: see jit._switch_to_numba)
     arm = robots.load("insomniac")
-    arrays = arm_state(arm).arrays
-    assert arrays is not None
+    state = arm_state(arm)
+    packed, arrays = state.packed_arm, state.arrays
+    assert packed is not None and arrays is not None and state.packed_family is not None
     out = np.empty(5)
-    pose(arrays, arm.neutral, out[:3])
-    pose(arrays, np.zeros((5, 2)).T[0], out[:3])  # (any strides: a column of a transposed array)
+    pose(packed, arm.neutral, out[:3])
+    pose(packed, np.zeros((5, 2)).T[0], out[:3])  # (any strides: a column of a transposed array)
     with pytest.raises(TypeError, match="argument 1"):
-        pose(arrays, np.zeros(5, dtype=np.int64), out)
+        pose(packed, np.zeros(5, dtype=np.int64), out)
     with pytest.raises(TypeError, match="argument 2"):
-        pose(arrays, arm.neutral, np.empty((1, 3)))
-    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): sign"):
-        pose(arrays._replace(sign=np.ones((5, 2))[:, 0]), arm.neutral, out[:3])
-    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): family: J is float64"):
-        pose(arrays._replace(family=arrays.family._replace(J=np.zeros(4))), arm.neutral, out[:3])
+        pose(packed, arm.neutral, np.empty((1, 3)))
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): an Arm, not a Packed"):
+        pose(arrays, arm.neutral, out[:3])
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): a packed Family, should be a packed Arm"):
+        pose(state.packed_family, arm.neutral, out[:3])
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): F is float32"):
+        pose(Packed(packed.F.astype(np.float32), packed.I), arm.neutral, out[:3])
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): I is int64\[1d\], not a C-contiguous"):
+        pose(Packed(packed.F, np.repeat(packed.I, 2)[::2]), arm.neutral, out[:3])
+    short = packed.I.copy()
+    short[1] -= 1
+    with pytest.raises(TypeError, match=r"argument 0 \(Arm\): its header has 17 leaves, a packed Arm 18"):
+        pose(Packed(packed.F, short), arm.neutral, out[:3])
+    with pytest.raises(TypeError, match=r"family\.J is float64\[1d\], should be int64\[1d\]"):
+        pack(arrays._replace(family=arrays.family._replace(J=np.zeros(4))))
+    with pytest.raises(TypeError, match=r"sign is float64\[2d\]"):
+        pack(arrays._replace(sign=np.ones((5, 2))))
     assert jit.parse_signature("Tuple((i8, f8))(f8[:], i8, f8[:, ::1], b1, f8[::1])") == [
         ("float64", 1, False),
         ("int64", 0, False),

@@ -26,7 +26,7 @@ def test_the_six_joint_arm_is_outside_the_family_and_says_why() -> None:
 
 
 def test_the_compiled_chain_is_pinocchios_model() -> None:
-    chain = arm_state(ARM).chain
+    chain = arm_state(ARM).packed_chain
     out = np.empty(3)
     rng = np.random.default_rng(1)
     for q in rng.uniform(ARM.limits.lower, ARM.limits.upper, size=(300, 6)):
