@@ -43,6 +43,9 @@ class Buffers(threading.local):
         self.work = np.zeros((4, 5))
         self.reached = np.zeros(3)
         self.point = np.zeros(3)
+        # the closed form's out-arguments in its calls' order (solve_point's: the first five),
+        # read from the thread's set at once (each attribute of a threading.local is a lookup)
+        self.out = (self.qs, self.ids, self.errs, self.work, self.reached, self.hits)
 
 
 @dataclass

@@ -119,6 +119,7 @@ def solve_ik(
         result = _solve_numerical(arm, point, pitch, ref, tolerance)
     else:
         result, checked = _solve_family(arm, point, pitch, ref, tolerance, roll is None, world)
+    solved = result.q  # (the closed form's exact answer comes with its roll: at this q)
     if world is not None and not (checked and (world.ground is None or float(point[2]) >= world.ground)):
         result = clear(arm, world, result, lambda: _alternatives(arm, world, point, pitch, ref, tolerance))
     if quantise:
@@ -127,7 +128,7 @@ def solve_ik(
         if hit is not None:
             reason = f"quantised to whole actuator steps, the answer collides: {hit}"
             result = result._replace(status=COLLISION, contact=(hit.first, hit.second), reason=reason)
-    if robot.roll_joint is not None:
+    if robot.roll_joint is not None and (result.roll is None or result.q is not solved):
         result = result._replace(roll=robot.tool_roll(result.q))
     return result
 
@@ -198,16 +199,14 @@ def _solve_family(
     """The closed form's answer, and whether it and every branch listed were found clear of
     ``world`` in the same compiled call (a world of primitive shapes; else not checked here)."""
     assert arm.packed_arm is not None
-    b = arm.buffers
+    out = arm.buffers.out
     prefs = FREE_PITCHES if pitch is None else np.array([pitch])
     together = world is not None and not world.coal_pairs
     if together:
         assert world is not None
-        code, m, phi, pitch_sum = solve_point_clear(
-            arm.packed_arm, world.packed_shapes, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached, b.hits
-        )
+        code, m, phi, pitch_sum = solve_point_clear(arm.packed_arm, world.packed_shapes, ref, point, prefs, *out)
     else:
-        code, m, phi, pitch_sum = solve_point(arm.packed_arm, ref, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
+        code, m, phi, pitch_sum = solve_point(arm.packed_arm, ref, point, prefs, *out[:5])
     if code == NONE and free_roll and arm.rolls_tool and _dist(point, _ORIGIN) <= arm.reach:
         # out of reach with the seed's roll, and the roll moves the tool point: the closed form
         # at other rolls, the least turn first
@@ -225,28 +224,32 @@ def _solve_family(
             f"pitch {pitch:.4f} rad is not reachable at this target within the joint limits; "
             f"the nearest reachable pitch is {phi:.4f} rad"
         )
-    qs = b.qs.copy()  # (all four rows: cheaper than slicing first; rows m and on are never read)
-    names = [BRANCH_NAMES[i] for i in b.ids.tolist()[:m]]
-    errs = b.errs.tolist()[:m]
+    b_qs, b_ids, b_errs, _, b_reached, b_hits = out
+    qs = b_qs.copy()  # (all four rows: cheaper than slicing first; rows m and on are never read)
+    ids, errs = b_ids.tolist(), b_errs.tolist()  # (likewise)
     if arm.exact and errs[0] <= tolerance:
         # the formula is the URDF's FK (checked against Pinocchio when the arm was first seen), so
-        # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage
+        # ``errs`` are the FK check: no refinement, and the answer is built from the compiled stage,
+        # its tool roll with it (what solve_ik would add by _replace, a microsecond more)
         reached_pitch = wrap(pitch_sum)
-        others = tuple([Branch(names[r], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
-        checked = together and max(b.hits.tolist()[:m]) < 0
-        return IKResult(  # (positional: the fields' order, status to reason)
+        others = tuple([Branch(BRANCH_NAMES[ids[r]], qs[r], errs[r]) for r in range(1, m)]) if m > 1 else ()
+        checked = together and max(b_hits.tolist()[:m]) < 0
+        robot = arm.robot
+        return IKResult(  # (positional: the fields' order, status to roll)
             status,
             qs[0],
             errs[0],
-            b.reached.copy(),
+            b_reached.copy(),
             point,
             reached_pitch,
             None if pitch is None else wrap(reached_pitch - pitch),
-            names[0],
+            BRANCH_NAMES[ids[0]],
             others,
             0,
             None if status == OK else reason,
+            None if robot.roll_joint is None else robot.tool_roll(qs[0]),
         ), checked
+    names = [BRANCH_NAMES[i] for i in ids[:m]]
     # an idealised [geometry], or an exact one whose first branch is off target (never "ok" off
     # target): each branch checked on the exact model and iterated there where it misses, at the
     # asked pitch (a free one was only the closed form's preference: the position alone counts)
