@@ -38,6 +38,8 @@ IntArray = NDArray[np.int64]
 HEADER = 2  # I[0]: the bundle's code, I[1]: its number of leaves
 PER_LEAF = 4  # a leaf's offset into F or I, and up to three dimensions (0 past its own)
 _SCALARS = {"f8": float, "i8": int, "b1": bool}
+# the types a scalar leaf may be (for "i8" and "f8" not a bool, which Python counts an int: _flat)
+_ACCEPTED = {"f8": (float, np.floating), "i8": (int, np.integer), "b1": (bool, np.bool_)}
 
 
 class Packed(NamedTuple):
@@ -65,9 +67,9 @@ def leaves(name: str) -> tuple[tuple[str, str, int], ...]:
     return tuple(out)
 
 
-@functools.cache
 def _names() -> dict[Any, str]:
-    """Each registered bundle's name, by its class and by its code."""
+    """Each registered bundle's name, by its class and by its code (made anew: a module with
+    compiled code registers its bundles when it is imported)."""
     out: dict[Any, str] = {}
     for name, (cls, _) in TUPLES.items():
         out[cls] = out[code_of(name)] = name
@@ -97,7 +99,7 @@ def _flat(bundle: Any, name: str, path: str = "") -> list[Any]:
             if not (isinstance(item, np.ndarray) and item.dtype == want and item.ndim == ndim):
                 got = f"{item.dtype}[{item.ndim}d]" if isinstance(item, np.ndarray) else type(item).__name__
                 raise TypeError(f"{where} is {got}, should be {np.dtype(want).name}[{ndim}d]")
-        elif not isinstance(item, (_SCALARS[dtype], np.generic)) or (dtype != "b1" and isinstance(item, bool)):
+        elif not isinstance(item, _ACCEPTED[dtype]) or (dtype != "b1" and isinstance(item, bool)):
             raise TypeError(f"{where} is a {type(item).__name__}, should be a {_SCALARS[dtype].__name__}")
         out.append(item)
     return out
