@@ -57,7 +57,7 @@ _NUMERICAL_STARTS = 8  # numerical IK starts from the atlas (after the seed)
 _NEAR = 1e-3  # [m] an idealised closed form's closest point this near: the numerical IK tries too
 _NEAR_PITCH = 1e-4  # [rad] an idealised closed form's nearest pitch this near the asked one: it is tried
 _PITCH_WEIGHT = 0.1  # [m/rad]: in the closest-point cost, 1 rad of pitch error weighs as 10 cm
-_ROLL_PROBES = (1, -1, 2, -2, 3, -3, 4)  # tool roll turns tried, in eighths of a turn, in order
+_ROLL_STEP = math.pi / 8  # [rad] the tool roll turns tried: every sixteenth of a turn each way, and to each limit
 _ROLL_HALVINGS = 2  # ... and halvings of the turn that reaches, toward the seed's roll
 _ORIGIN = np.zeros(3)
 
@@ -274,9 +274,11 @@ def _turn_roll(
 ) -> tuple[FloatArray, tuple[int, int, float, float]] | None:
     """The seed with its wrist roll turned, as little as it takes, so that the closed form
     reaches ``point``; with the closed form's answer there (in ``arm.buffers``). None if no
-    probe does. The tool rolls 45, 90, 135, 180 degrees each way from the seed's are tried in
-    that order (each the joint angle within limits nearest the seed's), and the turn that
-    reaches is halved toward the seed's joint angle while it still does."""
+    probe does. Probes, the least turn first: every sixteenth of a turn each way from the seed's
+    roll (each the joint angle within limits nearest the seed's), and the roll joint's two limits
+    (a target reached only near a limit: a Braccio-like roll of [0, pi] whose probes at a
+    multiple of 45 degrees all fell outside it); the turn that reaches is halved toward the
+    seed's joint angle while it still does."""
     packed_arm, g = arm.packed_arm, arm.robot.geometry
     assert packed_arm is not None and g is not None and g.roll is not None
     b = arm.buffers
@@ -289,11 +291,7 @@ def _turn_roll(
         probe[i] = angle
         return solve_point(packed_arm, probe, point, prefs, b.qs, b.ids, b.errs, b.work, b.reached)
 
-    for k in _ROLL_PROBES:
-        turns = [t for t in (k * math.pi / 4 + 2 * math.pi * m for m in (-1, 0, 1)) if lo <= start + t <= hi]
-        if not turns:
-            continue
-        turn = min(turns, key=abs)
+    for turn in _roll_turns(start, lo, hi):
         found = at(start + turn)
         if found[0] == NONE:
             continue
@@ -305,6 +303,18 @@ def _turn_roll(
             turn, found = 0.5 * turn, nearer
         return probe, found
     return None
+
+
+def _roll_turns(start: float, lo: float, hi: float) -> list[float]:
+    """The turns [rad] of a roll joint at ``start`` within [``lo``, ``hi``] that :func:`_turn_roll`
+    tries, the least first (a turn one way before the same the other)."""
+    turns = {round(lo - start, 12), round(hi - start, 12)}
+    for k in range(1, 9):
+        for sign in (1, -1):
+            within = [t for t in (sign * k * _ROLL_STEP + 2 * math.pi * m for m in (-1, 0, 1)) if lo <= start + t <= hi]
+            if within:
+                turns.add(min(within, key=abs))
+    return sorted((t for t in turns if abs(t) > 1e-9), key=lambda t: (abs(t), t < 0))
 
 
 def _closest(

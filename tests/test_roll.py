@@ -63,9 +63,9 @@ def test_without_a_roll_the_seeds_is_kept() -> None:
 def test_a_target_out_of_reach_at_the_seeds_roll_is_met_by_turning_it() -> None:
     """On the so101 the roll moves the tool point by up to 15.8 mm: some targets are out of the
     closed form's reach at the seed's roll (one needs the roll turned 4.3 rad, the long way
-    round the joint's 320 degrees). The closed form is tried at tool rolls 45, 90, 135 and 180
-    degrees each way, the turn halved toward the seed's while it reaches; the numerical
-    iteration only where none does. Every such target is met."""
+    round the joint's 320 degrees). The closed form is tried at tool rolls every 22.5 degrees
+    each way and at the joint's limits, the least turn first, the turn halved toward the seed's
+    while it reaches; the numerical iteration only where none does. Every such target is met."""
     arm = plain("so101")
     lo, hi = arm.limits.lower[4], arm.limits.upper[4]
     rng = np.random.default_rng(7)
@@ -80,10 +80,11 @@ def test_a_target_out_of_reach_at_the_seeds_roll_is_met_by_turning_it() -> None:
         assert r.q[4] != seed[4] and lo <= r.q[4] <= hi
         if r.branch == "numerical":
             numerical += 1
-        else:  # the closed form at a turned roll: eighths of a turn, halved up to twice
+        else:  # the closed form at a turned roll: sixteenths of a turn or to a limit, halved up to twice
             turned += 1
-            change = (r.q[4] - seed[4]) / (math.pi / 16)
-            assert abs(change - round(change)) < 1e-9
+            turn = r.q[4] - seed[4]
+            steps = [turn / (math.pi / 32)] + [4 * turn / (limit - seed[4]) for limit in (lo, hi)]
+            assert any(abs(c - round(c)) < 1e-9 for c in steps), (turn, seed[4])
     assert turned >= 25 and numerical <= 1, (turned, numerical)  # (measured: 29 turned, 1 numerical)
 
 
